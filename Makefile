@@ -1,0 +1,39 @@
+# Two commands do all set-up on a fresh machine:
+#   make render   renders the report's scene into renders/
+#   make test     runs the whole test suite
+# Both create .venv, install the pinned packages and make sure a libLLVM that
+# Dr.Jit can use is present (installing libllvm19 with apt-get when possible).
+
+PYTHON ?= python3
+VENV   := .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.installed
+
+.PHONY: all render test validate bench llvm clean
+
+all: render
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e '.[test,validate]'
+	touch $(STAMP)
+
+llvm: $(STAMP)
+	@bash .ci/ensure-llvm.sh $(PY)
+
+render: llvm
+	mkdir -p renders
+	$(PY) -m mitsuba_whitted.cli render scenes/cosc363.xml -o renders/cosc363.png
+
+test: llvm
+	$(PY) -m pytest -q
+
+validate: llvm
+	$(PY) -m validation.run
+
+bench: llvm
+	$(PY) -m mitsuba_whitted.cli bench
+
+clean:
+	rm -rf $(VENV) renders .pytest_cache

@@ -1,0 +1,76 @@
+"""Classic Whitted ray tracing as Mitsuba 3 plugins.
+
+Importing this package registers every plugin with Mitsuba for the active
+variant, and again after each ``mi.set_variant``, whichever comes first::
+
+    import mitsuba as mi
+    import mitsuba_whitted
+    mi.set_variant("llvm_ad_rgb")
+    scene = mi.load_file("scenes/cosc363.xml")
+    image = mi.render(scene)
+
+A usable libLLVM is chosen before Dr.Jit loads one (see :mod:`.llvm`).
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+from . import llvm
+
+__version__ = "0.1.0"
+
+#: Plugin modules, each registering one plugin at its bottom. Their classes
+#: derive from variant-specific Mitsuba types, so they are (re)imported after
+#: every variant change.
+PLUGIN_MODULES = (
+    # "integrators.whitted",
+)
+
+DEFAULT_VARIANT = "llvm_ad_rgb"
+
+llvm.configure()
+
+import mitsuba as mi  # noqa: E402  (after the libLLVM choice)
+
+
+def _register_plugins(variant: str | None) -> None:
+    if variant is None:
+        return
+    for name in PLUGIN_MODULES:
+        full_name = f"{__name__}.{name}"
+        if full_name in sys.modules:
+            importlib.reload(sys.modules[full_name])
+        else:
+            importlib.import_module(full_name)
+
+
+def _on_variant_change(old: str | None, new: str | None) -> None:
+    _register_plugins(new)
+
+
+def registered_plugins() -> list[str]:
+    """Names of the plugins this package provides."""
+    names = []
+    for name in PLUGIN_MODULES:
+        module = sys.modules.get(f"{__name__}.{name}")
+        if module is not None:
+            names.append(module.PLUGIN_NAME)
+    return names
+
+
+def set_variant(variant: str = DEFAULT_VARIANT) -> None:
+    """``mi.set_variant`` with a clear error for an LLVM variant when no
+    usable libLLVM is installed."""
+    if variant.startswith("llvm"):
+        llvm.require()
+    if variant not in mi.variants():
+        raise ValueError(
+            f"mitsuba_whitted: variant '{variant}' is not available; "
+            f"choose one of {', '.join(mi.variants())}.")
+    mi.set_variant(variant)
+
+
+mi.detail.add_variant_callback(_on_variant_change)
+_register_plugins(mi.variant())

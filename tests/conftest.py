@@ -1,0 +1,22 @@
+"""Shared fixtures: every test runs in the JIT variant the package targets."""
+
+import drjit as dr
+import mitsuba as mi
+import pytest
+
+import mitsuba_whitted
+
+VARIANT = mitsuba_whitted.DEFAULT_VARIANT
+
+
+@pytest.fixture(autouse=True, scope="session")
+def variant():
+    mitsuba_whitted.set_variant(VARIANT)
+    return VARIANT
+
+
+def assert_finite(image) -> None:
+    """Every rendered image of the suite must be free of NaN and Inf."""
+    values = image.numpy() if hasattr(image, "numpy") else image
+    import numpy as np
+    assert np.isfinite(values).all(), f"{np.size(values) - np.isfinite(values).sum()} non-finite values"
