@@ -1,0 +1,153 @@
+"""The report's sphere mapping: uv from the normal, for any nested texture."""
+
+from __future__ import annotations
+
+import math
+
+import drjit as dr
+import mitsuba as mi
+
+from ..errors import check_choice
+from .common import inverse_to_world, nested_texture, uv_remap_base
+
+PLUGIN_NAME = "sphere_map"
+
+
+def unit_direction(d: mi.Vector3f) -> mi.Vector3f:
+    """``d / |d|`` that never overflows, underflows or divides by zero: ``d``
+    is first divided by its largest component, a zero vector stays zero, and
+    the result is clamped to [-1, 1] so asin/acos never see 1 + ε."""
+    largest = dr.maximum(dr.maximum(dr.abs(d.x), dr.abs(d.y)), dr.abs(d.z))
+    scaled = d / dr.select(largest > 0, largest, 1.0)
+    n = scaled * dr.rsqrt(dr.maximum(dr.squared_norm(scaled), 1.0))
+    return dr.clip(n, -1.0, 1.0)
+
+
+def asin_uv(n: mi.Vector3f) -> mi.Point2f:
+    """The report's mapping: u = 0.5 − asin(n_x)/π, v = 0.5 − asin(n_y)/π."""
+    return mi.Point2f(0.5 - dr.asin(n.x) / math.pi, 0.5 - dr.asin(n.y) / math.pi)
+
+
+def atan_uv(n: mi.Vector3f) -> mi.Point2f:
+    """The report's alternative u = 0.5 + tan⁻¹(n_y/n_x)/(2π), written with
+    atan2 (quadrant-correct, finite at n_x = 0); v as in :func:`asin_uv`."""
+    return mi.Point2f(0.5 + dr.atan2(n.y, n.x) / (2 * math.pi),
+                      0.5 - dr.asin(n.y) / math.pi)
+
+
+def equirect_uv(n: mi.Vector3f) -> mi.Point2f:
+    """Longitude/latitude with +y up: u = 0.5 + atan2(n_x, n_z)/(2π) (u = 0.5
+    facing +z, growing towards +x), v = acos(n_y)/π (0 at +y, 1 at −y)."""
+    return mi.Point2f(0.5 + dr.atan2(n.x, n.z) / (2 * math.pi),
+                      dr.acos(n.y) / math.pi)
+
+
+MAPPINGS = {"asin": asin_uv, "atan": atan_uv, "equirect": equirect_uv}
+
+
+class SphereMap(uv_remap_base()):
+    """
+    .. _texture-sphere_map:
+
+    Sphere mapping (:monosp:`sphere_map`)
+    -------------------------------------
+
+    .. pluginparameters::
+
+     * - texture
+       - |texture|
+       - The texture to map (e.g. a ``bitmap``); required.
+       - |exposed|, |differentiable|
+
+     * - mapping
+       - |string|
+       - ``asin``, ``atan`` or ``equirect`` (see below). (Default: ``asin``)
+
+     * - center
+       - |point|
+       - If given, the direction is ``normalize(p − center)`` for the
+         surface point p; otherwise it is the shading normal. (Default: none)
+       - |exposed|
+
+     * - to_world
+       - |transform|
+       - Orientation of the mapping frame: the direction d is mapped as
+         ``to_world⁻¹ · d`` before the formulas below. (Default: identity)
+       - |exposed|
+
+    The report's "non planar texturing": texture coordinates come from a
+    unit direction n, by default the shading normal, and the nested texture
+    is evaluated at them (with a copy of the surface interaction whose uv is
+    replaced, so it works with any shape's own uv and any texture):
+
+    - ``asin`` (the report's): u = 0.5 − asin(n_x)/π, v = 0.5 − asin(n_y)/π.
+      Front (n_z > 0) and back hemispheres get the same uv: the back shows
+      the image mirrored. The image barely stretches near the centre.
+    - ``atan`` (the report's alternative): u = 0.5 + atan2(n_y, n_x)/(2π),
+      v as ``asin``: the image is wrapped once around the z axis, which
+      stretches it, as the report found. The seam is at n_x < 0, n_y = 0.
+    - ``equirect``: longitude/latitude about +y,
+      u = 0.5 + atan2(n_x, n_z)/(2π), v = acos(n_y)/π. The seam is at
+      n_x = 0, n_z < 0 (the back, seen from +z).
+
+    A Mitsuba bitmap puts its top row at v = 0, so n_y = +1 shows the top of
+    the image in every mapping and pictures appear upright.
+
+    Robustness: the direction is normalised without overflow and clamped
+    to [-1, 1], so a normal of length 1 + 1e-6, the poles, the seams and a
+    zero direction (a point at ``center``: it gets uv (0.5, 0.5)) all give
+    finite uv. ``mean()`` is the nested texture's mean: the mapping is not
+    area-preserving, so this is an estimate of the mean over the sphere.
+
+    .. tabs::
+        .. code-tab:: xml
+
+            <texture type="sphere_map" name="reflectance">
+                <string name="mapping" value="asin"/>
+                <texture type="bitmap" name="texture">
+                    <string name="filename" value="textures/lemons.png"/>
+                </texture>
+            </texture>
+
+        .. code-tab:: python
+
+            'type': 'sphere_map',
+            'mapping': 'asin',
+            'texture': {'type': 'bitmap', 'filename': 'textures/lemons.png'}
+    """
+
+    def __init__(self, props: mi.Properties):
+        mi.Texture.__init__(self, props)
+        self.texture = nested_texture(props, PLUGIN_NAME)
+        self.mapping = check_choice(props.get("mapping", "asin"), tuple(MAPPINGS),
+                                    PLUGIN_NAME, "mapping")
+        self.center = (mi.Point3f(props.get("center")) if "center" in props else None)
+        self.to_world = mi.AffineTransform4f(props.get("to_world", mi.ScalarTransform4f()))
+        self.parameters_changed([])
+
+    def parameters_changed(self, keys=None):
+        self.to_local = inverse_to_world(self.to_world, PLUGIN_NAME)
+        dr.make_opaque(self.to_local)
+        if self.center is not None:
+            dr.make_opaque(self.center)
+
+    def direction(self, si: mi.SurfaceInteraction3f) -> mi.Vector3f:
+        d = si.sh_frame.n if self.center is None else si.p - self.center
+        return self.to_local @ mi.Vector3f(d)
+
+    def remap_uv(self, si):
+        return MAPPINGS[self.mapping](unit_direction(self.direction(si)))
+
+    def traverse(self, callback):
+        self.traverse_texture(callback)
+        if self.center is not None:
+            callback.put("center", self.center, mi.ParamFlags.NonDifferentiable)
+        callback.put("to_world", self.to_world, mi.ParamFlags.NonDifferentiable)
+
+    def to_string(self):
+        return (f"SphereMap[\n  mapping = {self.mapping},\n"
+                f"  center = {None if self.center is None else self.center.numpy().ravel().tolist()},\n"
+                f"{self.nested_string()}\n]")
+
+
+mi.register_texture(PLUGIN_NAME, lambda props: SphereMap(props))
