@@ -23,3 +23,7 @@ def check_choice(value: str, choices, plugin: str, parameter: str) -> str:
     check(value in choices, plugin, parameter,
           f"must be one of {', '.join(repr(c) for c in choices)} (got {value!r})")
     return value
+
+
+class VariantError(RuntimeError):
+    """The active Mitsuba variant cannot run this plugin."""

@@ -1,0 +1,151 @@
+"""Pixel sampling patterns: pixel centres, n x n grids and the report's
+adaptive 4-way subdivision.
+
+Every pattern is deterministic and every reduction has a fixed order, so the
+same scene always gives the same image bit for bit: samples of one pixel (or
+one cell) are contiguous and summed by gathers in a fixed order, never by
+atomic scatter-adds whose order would vary between runs.
+
+Adaptive subdivision (the report's recursive anti-aliasing): a pixel is first
+sampled at the centres of its four quadrants. A quadrant whose colour differs
+from the mean of its three siblings by more than ``threshold`` (largest
+per-channel difference of the colours clamped to [0, 1], as the report
+compares displayable colours) becomes a cell of its own and is sampled again
+at the centres of its four quadrants, up to ``max_depth`` levels. A leaf at
+level L covers 4^-(L+1) of its pixel, so each cell's value is the mean of its
+four quadrants, computed bottom-up.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import drjit as dr
+import mitsuba as mi
+
+#: Quadrant centres of the unit cell, in the order children are stored.
+QUADRANTS = ((0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75))
+
+#: ``shade(positions, keys) -> (radiance, alpha)``: positions are in pixel
+#: units inside the crop window, keys identify samples for decorrelation.
+ShadeFn = Callable[[mi.Point2f, mi.UInt32], tuple]
+
+
+@dataclass
+class SampleCount:
+    """How many camera samples a pattern used, and where refinement stopped."""
+    samples: int = 0
+    levels: int = 0
+    per_level: tuple = ()
+    budget_hit_at: int | None = None
+
+
+def _sum_blocks(values, block: int):
+    """Sum of each run of ``block`` consecutive entries, in a fixed order."""
+    count = dr.width(values) // block
+    base = dr.arange(mi.UInt32, count) * block
+    total = dr.gather(type(values), values, base)
+    for k in range(1, block):
+        total += dr.gather(type(values), values, base + k)
+    return total
+
+
+def _grid_positions(width: int, height: int, n: int):
+    """Centres of an n x n grid in every pixel, pixel-major."""
+    index = dr.arange(mi.UInt32, width * height * n * n)
+    pixel, sub = index // (n * n), index % (n * n)
+    x = mi.Float(pixel % width) + (mi.Float(sub % n) + 0.5) / n
+    y = mi.Float(pixel // width) + (mi.Float(sub // n) + 0.5) / n
+    return mi.Point2f(x, y)
+
+
+def render_grid(width: int, height: int, n: int, shade: ShadeFn):
+    """Box-filtered pixels from n x n stratified samples (n = 1: centres)."""
+    positions = _grid_positions(width, height, n)
+    radiance, alpha = shade(positions, dr.arange(mi.UInt32, dr.width(positions)))
+    if n == 1:
+        return radiance, alpha, SampleCount(dr.width(positions), 0, (dr.width(positions),))
+    scale = 1.0 / (n * n)
+    count = SampleCount(dr.width(positions), 0, (dr.width(positions),))
+    return _sum_blocks(radiance, n * n) * scale, _sum_blocks(alpha, n * n) * scale, count
+
+
+def _quadrant_positions(origins: mi.Point2f, size: float) -> mi.Point2f:
+    """The four quadrant centres of each cell (lower corner ``origins``)."""
+    index = dr.arange(mi.UInt32, 4 * dr.width(origins))
+    cell, quadrant = index // 4, index % 4
+    corner = dr.gather(mi.Point2f, origins, cell)
+    qx = mi.Float(quadrant % 2) * 0.5 + 0.25
+    qy = mi.Float(quadrant // 2) * 0.5 + 0.25
+    return corner + mi.Vector2f(qx, qy) * size
+
+
+def _differs(colors: mi.Color3f, threshold: float) -> mi.Bool:
+    """Per quadrant: whether it differs from the mean of its 3 siblings."""
+    clamped = dr.clip(colors, 0.0, 1.0)
+    total = dr.repeat(_sum_blocks(clamped, 4), 4)
+    others = (total - clamped) / 3.0
+    return dr.max(dr.abs(clamped - others)) > threshold
+
+
+class AdaptiveSampler:
+    """The report's recursive 4-way subdivision, one level per wavefront."""
+
+    def __init__(self, threshold: float, max_depth: int, budget_spp: float,
+                 warn: Callable[[str], None]):
+        self.threshold = threshold
+        self.max_depth = max_depth
+        self.budget_spp = budget_spp
+        self.warn = warn
+
+    def render(self, width: int, height: int, shade: ShadeFn):
+        budget = int(self.budget_spp * width * height)
+        origins = _grid_positions(width, height, 1) - mi.Vector2f(0.5)
+        levels, count = [], SampleCount()
+        size = 1.0
+        while True:
+            positions = _quadrant_positions(origins, size)
+            keys = dr.arange(mi.UInt32, dr.width(positions)) + count.samples
+            radiance, alpha = shade(positions, keys)
+            count.samples += dr.width(positions)
+            count.per_level += (dr.width(positions),)
+            split = self._split_mask(radiance, len(levels), count, budget)
+            levels.append((radiance, alpha, split))
+            if split is None:
+                break
+            cells = dr.compress(split)
+            origins = dr.gather(mi.Point2f, positions, cells) - mi.Vector2f(size / 4)
+            size *= 0.5
+            levels[-1] = (radiance, alpha, cells)
+        count.levels = len(levels) - 1
+        return self._combine(levels) + (count,)
+
+    def _split_mask(self, radiance, level: int, count: SampleCount, budget: int):
+        """Quadrants to refine, or ``None`` when this level is the last."""
+        if level >= self.max_depth:
+            return None
+        split = _differs(radiance, self.threshold)
+        wanted = 4 * int(dr.count(split)[0])
+        if wanted == 0:
+            return None
+        if count.samples + wanted > budget:
+            count.budget_hit_at = level + 1
+            self.warn(
+                f"whitted: adaptive anti-aliasing stopped before level {level + 1}: its "
+                f"{wanted} samples would pass the budget of {self.budget_spp:g} samples per "
+                "pixel ('aa_budget'); raise 'aa_budget' or 'aa_threshold'.")
+            return None
+        return split
+
+    def _combine(self, levels):
+        """Bottom-up: a refined quadrant takes the mean of its four children."""
+        child_radiance, child_alpha = None, None
+        for radiance, alpha, cells in reversed(levels):
+            if child_radiance is not None:
+                mean_radiance = _sum_blocks(child_radiance, 4) * 0.25
+                mean_alpha = _sum_blocks(child_alpha, 4) * 0.25
+                dr.scatter(radiance, mean_radiance, cells)
+                dr.scatter(alpha, mean_alpha, cells)
+            child_radiance, child_alpha = radiance, alpha
+        return _sum_blocks(child_radiance, 4) * 0.25, _sum_blocks(child_alpha, 4) * 0.25

@@ -1,0 +1,195 @@
+"""Wavefront evaluation of Whitted ray trees.
+
+One generation of rays is traced at a time for a whole batch of camera
+samples. Each hit adds its local radiance (emission, ambient, lights) and
+spawns one child per delta component of its BSDF (mirror reflection,
+refraction, straight-through transmission); children whose throughput falls
+below ``min_throughput`` are pruned (Hall & Greenberg 1983), the rest are
+compacted into the next generation.
+
+Determinism: children are stored in (parent, component) order, so each
+parent owns a fixed slot per component. After a generation is finished its
+radiance is folded back into the parents' slots by plain scatters (each slot
+written once) and summed in component order. No atomic adds, so the same
+input gives the same bits.
+
+Memory: a generation wider than ``wavefront_size`` rays is split into parts
+traced one after the other (depth first), so memory stays bounded by about
+``depth x fan-out x wavefront_size`` rays whatever the depth.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import drjit as dr
+import mitsuba as mi
+
+from .lighting import DirectLighting, ShadowTester
+from .scene_needs import SceneNeeds
+
+
+def _to_int(value) -> int:
+    """A count kept lazily on the device (size-1 array) or on the host."""
+    return int(value[0]) if dr.is_array_v(value) else int(value)
+
+
+@dataclass
+class RayStats:
+    """Rays traced by kind. Device-side counts stay lazy until read."""
+    camera: int = 0
+    reflection: object = 0
+    refraction: object = 0
+    passthrough: object = 0
+    shadow: object = 0
+    generations: int = 0
+    batches: int = 0
+
+    KINDS = ("camera", "reflection", "refraction", "passthrough", "shadow")
+
+    def as_dict(self) -> dict:
+        counts = {kind: _to_int(getattr(self, kind)) for kind in self.KINDS}
+        counts["total"] = sum(counts.values())
+        counts["generations"] = self.generations
+        counts["batches"] = self.batches
+        return counts
+
+
+class RayBatch:
+    """Rays of one generation: origin, direction, throughput, hash key."""
+
+    def __init__(self, o, d, throughput, key):
+        self.o, self.d, self.throughput, self.key = o, d, throughput, key
+
+    def __len__(self) -> int:
+        return dr.width(self.key)
+
+    def take(self, index: mi.UInt32) -> "RayBatch":
+        return RayBatch(dr.gather(mi.Point3f, self.o, index),
+                        dr.gather(mi.Vector3f, self.d, index),
+                        dr.gather(mi.Color3f, self.throughput, index),
+                        dr.gather(mi.UInt32, self.key, index))
+
+    def fields(self):
+        return self.o, self.d, self.throughput, self.key
+
+
+@dataclass
+class TreeSettings:
+    max_depth: int          # Mitsuba's convention, already mapped from -1
+    min_throughput: float
+    hide_emitters: bool
+    wavefront_size: int
+
+
+class RayTreeTracer:
+    """Traces batches of camera rays to radiance, generation by generation."""
+
+    def __init__(self, scene: mi.Scene, needs: SceneNeeds, settings: TreeSettings,
+                 lighting: DirectLighting, intersect):
+        self.scene = scene
+        self.needs = needs
+        self.settings = settings
+        self.lighting = lighting
+        self.intersect = intersect
+        self.components = [("delta", c) for c in needs.delta_components]
+        if needs.null_surfaces:
+            self.components.append(("null", None))
+        self.stats = RayStats()
+
+    @property
+    def fan_out(self) -> int:
+        return len(self.components)
+
+    def trace(self, rays: RayBatch):
+        """Radiance and alpha (primary hit) of each camera ray."""
+        self.stats.camera += len(rays)
+        radiance, alpha = self._trace(rays, 0)
+        return radiance, alpha
+
+    def _trace(self, rays: RayBatch, generation: int):
+        self.stats.batches += 1
+        self.stats.generations = max(self.stats.generations, generation + 1)
+        local, alpha, children, slots = self._shade(rays, generation)
+        if children is None:
+            return local, alpha
+        folded = dr.zeros(mi.Color3f, len(rays) * self.fan_out)
+        step = self.settings.wavefront_size
+        for start in range(0, len(children), step):
+            part = dr.arange(mi.UInt32, start, min(start + step, len(children)))
+            radiance, _ = self._trace(children.take(part), generation + 1)
+            dr.scatter(folded, radiance, dr.gather(mi.UInt32, slots, part))
+        return local + self._sum_children(folded, len(rays)), alpha
+
+    def _sum_children(self, folded: mi.Color3f, parents: int) -> mi.Color3f:
+        base = dr.arange(mi.UInt32, parents) * self.fan_out
+        total = dr.gather(mi.Color3f, folded, base)
+        for k in range(1, self.fan_out):
+            total += dr.gather(mi.Color3f, folded, base + k)
+        return total
+
+    def _shade(self, rays: RayBatch, generation: int):
+        """Local radiance of one generation and its compacted children."""
+        depth = self.settings.max_depth
+        ray = mi.Ray3f(rays.o, rays.d)
+        si = self.intersect(ray, mi.Bool(True))
+        hit = si.is_valid()
+        local = mi.Color3f(0)
+        if generation + 1 <= depth and not (generation == 0 and self.settings.hide_emitters):
+            local += si.emitter(self.scene).eval(si)
+        children = slots = None
+        if generation + 2 <= depth:
+            bsdf = si.bsdf(ray)
+            local += self.lighting.radiance(si, bsdf, rays.key, hit)
+            if self.fan_out and generation + 2 <= depth:
+                children, slots = self._spawn(si, bsdf, ray, rays, hit)
+        local *= rays.throughput
+        alpha = mi.Float(hit)
+        dr.eval(local, alpha)
+        return local, alpha, children, slots
+
+    def _spawn(self, si, bsdf, ray, rays: RayBatch, active):
+        """Children in (parent, component) order, pruned and compacted."""
+        n, k = len(rays), self.fan_out
+        width = n * k
+        buffers = [dr.zeros(mi.Point3f, width), dr.zeros(mi.Vector3f, width),
+                   dr.zeros(mi.Color3f, width), dr.zeros(mi.UInt32, width)]
+        valid = dr.zeros(mi.Bool, width)
+        slot0 = dr.arange(mi.UInt32, n) * k
+        for index, (kind, component) in enumerate(self.components):
+            weight, direction, ok, ray_kind = self._child(kind, component, si, bsdf, ray, active)
+            throughput = rays.throughput * weight
+            ok &= dr.max(throughput) > max(self.settings.min_throughput, 0.0)
+            child = si.spawn_ray(direction)
+            key = mi.sample_tea_32(rays.key, mi.UInt32(index + 1))[0]
+            for buffer, value in zip(buffers, (child.o, child.d, throughput, key)):
+                dr.scatter(buffer, value, slot0 + index)
+            dr.scatter(valid, ok, slot0 + index)
+            self._count(ray_kind, ok)
+        slots = dr.compress(valid)
+        if dr.width(slots) == 0:
+            return None, None
+        children = RayBatch(*buffers).take(slots)
+        dr.eval(*children.fields(), slots)
+        return children, slots
+
+    def _child(self, kind, component, si, bsdf, ray, active):
+        """Weight, direction, validity and kind of one delta child per hit."""
+        if kind == "null":
+            weight = bsdf.eval_null_transmission(si, active)
+            return weight, ray.d, active & dr.any(weight > 0), "passthrough"
+        ctx = mi.BSDFContext(mi.TransportMode.Radiance, mi.BSDFFlags.Delta, component)
+        bs, weight = bsdf.sample(ctx, si, 0.5, mi.Point2f(0.5), active)
+        ok = (active & (bs.pdf > 0) & mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+              & dr.any(weight > 0))
+        reflected = mi.has_flag(bs.sampled_type, mi.BSDFFlags.DeltaReflection)
+        return weight, si.to_world(bs.wo), ok, (reflected, "reflection", "refraction")
+
+    def _count(self, kind, ok) -> None:
+        """Adds the number of rays of ``kind`` to the statistics, lazily."""
+        if isinstance(kind, tuple):
+            reflected, first, second = kind
+            self._count(first, ok & reflected)
+            self._count(second, ok & ~reflected)
+            return
+        setattr(self.stats, kind, getattr(self.stats, kind) + dr.count(ok))
