@@ -3,6 +3,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
+from ..camera import camera_rays
 from ..errors import ParameterError, VariantError, check, check_choice
 from . import antialias
 from .lighting import DirectLighting, LightingSettings, ShadowTester
@@ -179,7 +180,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         tracer = self.make_tracer(scene, int(seed))
         width, height = film.crop_size()
         with dr.suspend_grad():
-            shade = self._camera_shader(tracer, sensor, film)
+            shade = self._camera_shader(tracer, sensor)
             radiance, alpha, count = self._sample_pixels(width, height, shade)
             block = _image_block(film, radiance, alpha, channels)
         film.put_block(block)
@@ -199,21 +200,16 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         n = self.aa_samples if self.aa == "grid" else 1
         return antialias.render_grid(width, height, n, shade)
 
-    def _camera_shader(self, tracer: RayTreeTracer, sensor: mi.Sensor, film: mi.Film):
+    def _camera_shader(self, tracer: RayTreeTracer, sensor: mi.Sensor):
         """``shade(positions, keys)``: trace camera rays through crop pixels,
         in parts of at most ``wavefront_size`` rays."""
-        offset = mi.ScalarVector2f(film.crop_offset())
-        inv_size = 1.0 / mi.ScalarVector2f(film.size())
-        time = sensor.shutter_open() + 0.5 * sensor.shutter_open_time()
-
         def shade(positions: mi.Point2f, keys: mi.UInt32):
             total = dr.width(positions)
             radiance = dr.zeros(mi.Color3f, total)
             alpha = dr.zeros(mi.Float, total)
             for start in range(0, total, self.wavefront_size):
                 part = dr.arange(mi.UInt32, start, min(start + self.wavefront_size, total))
-                position = (dr.gather(mi.Point2f, positions, part) + offset) * inv_size
-                ray, weight = sensor.sample_ray(time, 0.5, position, mi.Point2f(0.5))
+                ray, weight = camera_rays(sensor, dr.gather(mi.Point2f, positions, part))
                 rays = RayBatch(ray.o, ray.d, mi.Color3f(weight),
                                 dr.gather(mi.UInt32, keys, part))
                 part_radiance, part_alpha = tracer.trace(rays)
@@ -226,12 +222,16 @@ class WhittedIntegrator(mi.SamplingIntegrator):
 
         return shade
 
+    def trace_rays(self, scene: mi.Scene, ray: mi.Ray3f, seed: int = 0):
+        """Whitted radiance and alpha along arbitrary rays."""
+        tracer = self.make_tracer(scene, seed)
+        keys = dr.arange(mi.UInt32, dr.width(ray.o))
+        return tracer.trace(RayBatch(mi.Point3f(ray.o), mi.Vector3f(ray.d),
+                                     mi.Color3f(1), keys))
+
     def sample(self, scene, sampler, ray, medium=None, active=True):
         """Whitted radiance along arbitrary rays (no anti-aliasing)."""
-        tracer = self.make_tracer(scene)
-        keys = dr.arange(mi.UInt32, dr.width(ray.o))
-        radiance, alpha = tracer.trace(
-            RayBatch(mi.Point3f(ray.o), mi.Vector3f(ray.d), mi.Color3f(1), keys))
+        radiance, alpha = self.trace_rays(scene, ray)
         return mi.Spectrum(radiance), alpha > 0, []
 
     # ------------------------------------------------------------ interfaces

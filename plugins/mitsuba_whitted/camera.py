@@ -1,0 +1,24 @@
+"""Camera rays through given points of a sensor's crop window."""
+
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+
+
+def pixel_centres(film: mi.Film) -> mi.Point2f:
+    """Centre of every pixel of the crop window, row-major, in pixel units."""
+    width, height = film.crop_size()
+    index = dr.arange(mi.UInt32, width * height)
+    return mi.Point2f(mi.Float(index % width) + 0.5, mi.Float(index // width) + 0.5)
+
+
+def camera_rays(sensor: mi.Sensor, positions: mi.Point2f):
+    """Rays (and sensor weights) through ``positions``, given in pixel units
+    relative to the crop window. The aperture and time are fixed at their
+    centres, so thin-lens cameras render as pinholes (deterministic)."""
+    film = sensor.film()
+    offset = mi.ScalarVector2f(film.crop_offset())
+    inv_size = 1.0 / mi.ScalarVector2f(film.size())
+    time = sensor.shutter_open() + 0.5 * sensor.shutter_open_time()
+    return sensor.sample_ray(time, 0.5, (positions + offset) * inv_size, mi.Point2f(0.5))
