@@ -18,6 +18,15 @@ import numpy as np
 from ..errors import check
 
 
+def read_to_world(props: mi.Properties) -> mi.AffineTransform4f:
+    """The optional ``to_world`` property (identity if absent) as a JIT
+    transform (the parser hands over double precision; plugins use float)."""
+    if "to_world" not in props:
+        return mi.AffineTransform4f()
+    matrix = np.array(props.get("to_world").matrix, dtype=np.float32)
+    return mi.AffineTransform4f(mi.ScalarTransform4f(matrix))
+
+
 def inverse_to_world(to_world: mi.AffineTransform4f, plugin: str) -> mi.AffineTransform4f:
     """``to_world⁻¹``, or a :class:`ParameterError` if it does not exist."""
     to_local = to_world.inverse()

@@ -88,8 +88,8 @@ class PlanarMap(uv_remap_base()):
         for axis in ("x", "z"):
             low, high = getattr(self, f"{axis}_min"), getattr(self, f"{axis}_max")
             check(dr.all(high > low), PLUGIN_NAME, f"{axis}_max",
-                  f"must be greater than {axis}_min (got {axis}_min={low[0]}, "
-                  f"{axis}_max={high[0]})")
+                  f"must be greater than {axis}_min (got {axis}_min={dr.slice(low, 0)}, "
+                  f"{axis}_max={dr.slice(high, 0)})")
         dr.make_opaque(self.x_min, self.x_max, self.z_min, self.z_max)
 
     def remap_uv(self, si):
@@ -102,7 +102,7 @@ class PlanarMap(uv_remap_base()):
             callback.put(name, getattr(self, name), mi.ParamFlags.NonDifferentiable)
 
     def to_string(self):
-        bounds = ", ".join(f"{name} = {getattr(self, name)[0]}" for name in DEFAULT_BOUNDS)
+        bounds = ", ".join(f"{name} = {dr.slice(getattr(self, name), 0)}" for name in DEFAULT_BOUNDS)
         return f"PlanarMap[\n  {bounds},\n{self.nested_string()}\n]"
 
 

@@ -6,17 +6,20 @@ import math
 
 import drjit as dr
 import mitsuba as mi
+import numpy as np
 
 from ..errors import check_choice
-from .common import inverse_to_world, nested_texture, uv_remap_base
+from .common import inverse_to_world, nested_texture, read_to_world, uv_remap_base
 
 PLUGIN_NAME = "sphere_map"
 
 
 def unit_direction(d: mi.Vector3f) -> mi.Vector3f:
     """``d / |d|`` that never overflows, underflows or divides by zero: ``d``
-    is first divided by its largest component, a zero vector stays zero, and
-    the result is clamped to [-1, 1] so asin/acos never see 1 + ε."""
+    is first divided by its largest component (|d|² of 1e-25 or 1e25 is not
+    a float32), and a zero vector stays zero. The clamp to [-1, 1] keeps
+    asin/acos defined where rsqrt is an approximation (CUDA's is within
+    2 ulp, so a component of a unit vector may come out as 1 + ε)."""
     largest = dr.maximum(dr.maximum(dr.abs(d.x), dr.abs(d.y)), dr.abs(d.z))
     scaled = d / dr.select(largest > 0, largest, 1.0)
     n = scaled * dr.rsqrt(dr.maximum(dr.squared_norm(scaled), 1.0))
@@ -82,7 +85,8 @@ class SphereMap(uv_remap_base()):
 
     - ``asin`` (the report's): u = 0.5 − asin(n_x)/π, v = 0.5 − asin(n_y)/π.
       Front (n_z > 0) and back hemispheres get the same uv: the back shows
-      the image mirrored. The image barely stretches near the centre.
+      the image mirrored. The report chose it because it did not stretch
+      the lemons.
     - ``atan`` (the report's alternative): u = 0.5 + atan2(n_y, n_x)/(2π),
       v as ``asin``: the image is wrapped once around the z axis, which
       stretches it, as the report found. The seam is at n_x < 0, n_y = 0.
@@ -122,7 +126,7 @@ class SphereMap(uv_remap_base()):
         self.mapping = check_choice(props.get("mapping", "asin"), tuple(MAPPINGS),
                                     PLUGIN_NAME, "mapping")
         self.center = (mi.Point3f(props.get("center")) if "center" in props else None)
-        self.to_world = mi.AffineTransform4f(props.get("to_world", mi.ScalarTransform4f()))
+        self.to_world = read_to_world(props)
         self.parameters_changed([])
 
     def parameters_changed(self, keys=None):
@@ -146,7 +150,7 @@ class SphereMap(uv_remap_base()):
 
     def to_string(self):
         return (f"SphereMap[\n  mapping = {self.mapping},\n"
-                f"  center = {None if self.center is None else self.center.numpy().ravel().tolist()},\n"
+                f"  center = {None if self.center is None else np.ravel(self.center).tolist()},\n"
                 f"{self.nested_string()}\n]")
 
 

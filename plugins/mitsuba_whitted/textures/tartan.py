@@ -6,9 +6,10 @@ import math
 
 import drjit as dr
 import mitsuba as mi
+import numpy as np
 
 from ..errors import check
-from .common import inverse_to_world
+from .common import inverse_to_world, read_to_world
 
 PLUGIN_NAME = "tartan"
 
@@ -52,7 +53,7 @@ class Tartan(mi.Texture):
     albedo would make a BSDF emit negative light).
 
     The pattern depends on the 3D point, not on uv, so it needs no
-    parameterisation and works on any shape.
+    parameterisation and works on any shape. It needs an RGB variant.
 
     ``mean()`` is the analytic expectation of the luminance over space,
     taking the squares (a quarter of space) and the background as
@@ -79,15 +80,18 @@ class Tartan(mi.Texture):
 
     def __init__(self, props: mi.Properties):
         mi.Texture.__init__(self, props)
+        # The report's background is an RGB triple of sines: no spectrum.
+        check(mi.is_rgb, PLUGIN_NAME, "color",
+              f"is RGB, which the variant '{mi.variant()}' cannot use: choose an RGB "
+              "variant such as llvm_ad_rgb")
         self.frequency = mi.Float(props.get("frequency", DEFAULT_FREQUENCY))
         self.color = mi.Color3f(props.get("color", mi.ScalarColor3f(DEFAULT_COLOR)))
-        self.to_world = mi.AffineTransform4f(
-            props.get("to_world", mi.ScalarTransform4f()))
+        self.to_world = read_to_world(props)
         self.parameters_changed([])
 
     def parameters_changed(self, keys=None):
         check(dr.all(self.frequency > 0), PLUGIN_NAME, "frequency",
-              f"must be > 0 (got {self.frequency[0]})")
+              f"must be > 0 (got {dr.slice(self.frequency, 0)})")
         self.to_local = inverse_to_world(self.to_world, PLUGIN_NAME)
         # Opaque: a new value must not bake a new constant into every kernel.
         dr.make_opaque(self.frequency, self.color, self.to_local)
@@ -118,8 +122,8 @@ class Tartan(mi.Texture):
 
     def to_string(self):
         to_world = str(self.to_world).replace("\n", "\n  ")
-        return (f"Tartan[\n  frequency = {self.frequency[0]},\n"
-                f"  color = {self.color.numpy().ravel().tolist()},\n"
+        return (f"Tartan[\n  frequency = {dr.slice(self.frequency, 0)},\n"
+                f"  color = {np.ravel(self.color).tolist()},\n"
                 f"  to_world = {to_world}\n]")
 
 
