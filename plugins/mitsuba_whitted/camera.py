@@ -17,8 +17,7 @@ def camera_rays(sensor: mi.Sensor, positions: mi.Point2f):
     """Rays (and sensor weights) through ``positions``, given in pixel units
     relative to the crop window. The aperture and time are fixed at their
     centres, so thin-lens cameras render as pinholes (deterministic)."""
-    film = sensor.film()
-    offset = mi.ScalarVector2f(film.crop_offset())
-    inv_size = 1.0 / mi.ScalarVector2f(film.size())
+    # Mitsuba's sensors take film positions relative to the crop window.
+    inv_size = 1.0 / mi.ScalarVector2f(sensor.film().crop_size())
     time = sensor.shutter_open() + 0.5 * sensor.shutter_open_time()
-    return sensor.sample_ray(time, 0.5, (positions + offset) * inv_size, mi.Point2f(0.5))
+    return sensor.sample_ray(time, 0.5, positions * inv_size, mi.Point2f(0.5))

@@ -39,6 +39,8 @@ class SampleCount:
     levels: int = 0
     per_level: tuple = ()
     budget_hit_at: int | None = None
+    #: Camera samples per pixel (row-major), for adaptive sampling.
+    per_pixel: object = None
 
 
 def _sum_blocks(values, block: int):
@@ -78,7 +80,7 @@ def _quadrant_positions(origins: mi.Point2f, size: float) -> mi.Point2f:
     corner = dr.gather(mi.Point2f, origins, cell)
     qx = mi.Float(quadrant % 2) * 0.5 + 0.25
     qy = mi.Float(quadrant // 2) * 0.5 + 0.25
-    return corner + mi.Vector2f(qx, qy) * size
+    return mi.Point2f(corner + mi.Vector2f(qx, qy) * size)
 
 
 def _differs(colors: mi.Color3f, threshold: float) -> mi.Bool:
@@ -101,8 +103,8 @@ class AdaptiveSampler:
 
     def render(self, width: int, height: int, shade: ShadeFn):
         budget = int(self.budget_spp * width * height)
-        origins = _grid_positions(width, height, 1) - mi.Vector2f(0.5)
-        levels, count = [], SampleCount()
+        origins = mi.Point2f(_grid_positions(width, height, 1) - 0.5)
+        levels, count = [], SampleCount(per_pixel=dr.zeros(mi.UInt32, width * height))
         size = 1.0
         while True:
             positions = _quadrant_positions(origins, size)
@@ -110,12 +112,14 @@ class AdaptiveSampler:
             radiance, alpha = shade(positions, keys)
             count.samples += dr.width(positions)
             count.per_level += (dr.width(positions),)
+            pixel = mi.UInt32(positions.y) * width + mi.UInt32(positions.x)
+            dr.scatter_reduce(dr.ReduceOp.Add, count.per_pixel, mi.UInt32(1), pixel)
             split = self._split_mask(radiance, len(levels), count, budget)
             levels.append((radiance, alpha, split))
             if split is None:
                 break
             cells = dr.compress(split)
-            origins = dr.gather(mi.Point2f, positions, cells) - mi.Vector2f(size / 4)
+            origins = mi.Point2f(dr.gather(mi.Point2f, positions, cells) - size / 4)
             size *= 0.5
             levels[-1] = (radiance, alpha, cells)
         count.levels = len(levels) - 1

@@ -22,6 +22,9 @@ MAX_SHADOW_CROSSINGS = 16
 R2_STEP = (0.7548776662466927, 0.5698402909980532)
 #: A direction this close to the incoming one counts as "straight through".
 STRAIGHT_COSINE = 1.0 - 1e-5
+#: Oblique local direction used to tell index-matched from refracting
+#: surfaces: at normal incidence even glass does not bend a ray.
+PROBE_DIRECTION = (0.6, 0.0, 0.8)
 
 
 @dataclass
@@ -87,15 +90,28 @@ class ShadowTester:
         for component in self.needs.transmission_components:
             ctx = mi.BSDFContext(mi.TransportMode.Radiance,
                                  mi.BSDFFlags.DeltaTransmission, component)
-            bs, weight = bsdf.sample(ctx, si, 0.5, mi.Point2f(0.5), active)
-            ok = active & (bs.pdf > 0) & mi.has_flag(bs.sampled_type,
-                                                     mi.BSDFFlags.DeltaTransmission)
+            weight, ok = self._transmission(bsdf, ctx, si, active)
             if not self.seed_mode:
-                ok &= dr.dot(si.to_world(bs.wo), ray.d) >= STRAIGHT_COSINE
+                ok &= self._bends_no_ray(bsdf, ctx, si, active)
             passed += dr.select(ok, weight, mi.Color3f(0))
         if self.needs.null_surfaces:
             passed += bsdf.eval_null_transmission(si, active)
         return passed
+
+    @staticmethod
+    def _transmission(bsdf, ctx, si, active):
+        bs, weight = bsdf.sample(ctx, si, 0.5, mi.Point2f(0.5), active)
+        ok = active & (bs.pdf > 0) & mi.has_flag(bs.sampled_type,
+                                                 mi.BSDFFlags.DeltaTransmission)
+        return weight, ok
+
+    @staticmethod
+    def _bends_no_ray(bsdf, ctx, si, active) -> mi.Bool:
+        """Whether the transmission leaves an oblique ray unbent."""
+        probe = mi.SurfaceInteraction3f(si)
+        probe.wi = dr.mulsign(mi.Vector3f(*PROBE_DIRECTION), si.wi.z)
+        bs, _ = bsdf.sample(ctx, probe, 0.5, mi.Point2f(0.5), active)
+        return dr.dot(bs.wo, -probe.wi) >= STRAIGHT_COSINE
 
 
 class DirectLighting:

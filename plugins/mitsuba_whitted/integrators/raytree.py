@@ -105,6 +105,7 @@ class RayTreeTracer:
         """Radiance and alpha (primary hit) of each camera ray."""
         self.stats.camera += len(rays)
         radiance, alpha = self._trace(rays, 0)
+        self.stats.shadow = self.lighting.shadow_rays
         return radiance, alpha
 
     def _trace(self, rays: RayBatch, generation: int):

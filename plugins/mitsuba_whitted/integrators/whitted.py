@@ -133,6 +133,8 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         self.progress = None
         #: Statistics of the last render (ray counts by kind, AA samples).
         self.last_stats = {}
+        #: Camera samples per pixel of the last adaptive render (mi.UInt32).
+        self.last_sample_map = None
 
     def _validate(self):
         check(self.max_depth >= -1, PLUGIN_NAME, "max_depth",
@@ -185,11 +187,11 @@ class WhittedIntegrator(mi.SamplingIntegrator):
             block = _image_block(film, radiance, alpha, channels)
         film.put_block(block)
         self.last_stats = tracer.stats.as_dict()
-        self.last_stats["shadow"] = _lazy_int(tracer.lighting.shadow_rays)
-        self.last_stats["total"] += self.last_stats["shadow"]
         self.last_stats["aa_samples"] = count.samples
+        self.last_stats["aa_per_level"] = count.per_level
         self.last_stats["aa_levels"] = count.levels
         self.last_stats["aa_budget_hit_at"] = count.budget_hit_at
+        self.last_sample_map = count.per_pixel
         return film.develop() if develop else mi.TensorXf()
 
     def _sample_pixels(self, width, height, shade):
@@ -296,10 +298,6 @@ def _image_block(film: mi.Film, radiance: mi.Color3f, alpha: mi.Float, channels:
         dr.scatter(data, value, base + index)
     tensor = mi.TensorXf(data, shape=(height, width, channels))
     return mi.ImageBlock(tensor, film.crop_offset())
-
-
-def _lazy_int(value) -> int:
-    return int(value[0]) if dr.is_array_v(value) else int(value)
 
 
 def _warn(message: str) -> None:

@@ -1,0 +1,204 @@
+"""The whitted integrator: shadows, depth, determinism, film, parameters."""
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+import pytest
+
+import mitsuba_whitted
+from conftest import assert_finite
+from scenes import camera, diffuse, floor, integrator, point_light, rgb, scene, sphere
+
+TINT = (0.8, 0.5, 0.3)
+
+
+def render(description, **settings):
+    loaded = mi.load_dict(description)
+    whitted = mi.load_dict(integrator(**settings))
+    image = mi.render(loaded, integrator=whitted)
+    assert_finite(image)
+    return np.array(image), whitted
+
+
+def shadow_scene(occluder_bsdf=None):
+    """A floor lit from straight above; an optional sphere between them.
+
+    The camera looks at the floor's centre from the side, below the
+    sphere, so only the shadow ray crosses the sphere."""
+    objects = [floor(y=0.0, size=3), point_light((0, 4, 0), 30.0)]
+    if occluder_bsdf is not None:
+        objects.append(sphere((0, 2, 0), 0.5, occluder_bsdf))
+    return scene(*objects, sensor=camera(origin=(0, 1, 4), target=(0, 0, 0), size=33))
+
+
+def centre_ratio(occluder_bsdf, shadows):
+    lit, _ = render(shadow_scene(), shadows=shadows)
+    shaded, _ = render(shadow_scene(occluder_bsdf), shadows=shadows)
+    centre = lit.shape[0] // 2
+    # The shadow must be there but not reach the floor beyond its umbra.
+    return shaded[centre, centre] / lit[centre, centre], shaded[-3, centre] / lit[-3, centre]
+
+
+def tinted_glass(ior):
+    return {"type": "dielectric", "int_ior": ior, "ext_ior": 1.0,
+            "specular_transmittance": rgb(*TINT)}
+
+
+@pytest.mark.parametrize("shadows", ["physical", "seed"])
+def test_index_matched_shadow_is_transmittance_squared(shadows):
+    """Two interfaces of an index-matched sphere: the tint, squared."""
+    centre, outside = centre_ratio(tinted_glass(1.0), shadows)
+    np.testing.assert_allclose(centre, np.square(TINT), rtol=1e-5)
+    np.testing.assert_allclose(outside, 1.0, rtol=1e-6)
+
+
+def test_physical_shadow_behind_refracting_glass_is_black():
+    centre, _ = centre_ratio(tinted_glass(1.5), "physical")
+    assert np.all(centre == 0)
+
+
+def test_seed_shadow_behind_refracting_glass_is_tinted():
+    """Normal incidence through the centre: Fresnel transmission
+    (1 - F)^2 with F = ((n - 1) / (n + 1))^2, the radiance scalings of
+    entering and leaving cancel, and the tint applies twice."""
+    centre, _ = centre_ratio(tinted_glass(1.5), "seed")
+    fresnel = ((1.5 - 1) / (1.5 + 1)) ** 2
+    np.testing.assert_allclose(centre, (1 - fresnel) ** 2 * np.square(TINT), rtol=1e-4)
+
+
+def test_opaque_occluder_blocks_in_both_modes():
+    for shadows in ("physical", "seed"):
+        centre, _ = centre_ratio(diffuse(0.5, 0.5, 0.5), shadows)
+        assert np.all(centre == 0)
+
+
+def test_diffuse_point_light_closed_form():
+    """Floor radiance under a point light: rho/pi * I cos(theta) / d^2."""
+    image, _ = render(shadow_scene())
+    centre = image.shape[0] // 2
+    expected = 0.6 / np.pi * 30.0 / 4.0 ** 2
+    np.testing.assert_allclose(image[centre, centre], expected, rtol=2e-3)
+
+
+def glass_scene(size=48):
+    mirror_ball = sphere((-0.8, 0, 0), 0.6, {"type": "conductor"})
+    glass = sphere((0.7, 0, 0.3), 0.6, {"type": "dielectric"})
+    lamp = {"type": "sphere", "center": [0, 2, 2], "radius": 0.3,
+            "emitter": {"type": "area", "radiance": rgb(10, 10, 10)}}
+    return scene(floor(), mirror_ball, glass, lamp, point_light((1, 3, 3)),
+                 sensor=camera(origin=(0, 1, 5), size=size))
+
+
+def test_determinism_bit_for_bit():
+    settings = dict(aa="adaptive", aa_max_depth=3, aa_threshold=0.05, emitter_samples=4)
+    first, _ = render(glass_scene(), **settings)
+    second, _ = render(glass_scene(), **settings)
+    assert np.array_equal(first, second)
+
+
+def test_wavefront_size_is_not_an_approximation():
+    """Splitting generations into parts changes which operations Dr.Jit
+    fuses into one kernel, and with it float rounding (FMA contraction),
+    but nothing else: pixels agree to float32 noise."""
+    large, _ = render(glass_scene(), aa="grid", aa_samples=2)
+    small, whitted = render(glass_scene(), aa="grid", aa_samples=2, wavefront_size=1024)
+    assert whitted.last_stats["batches"] > 20
+    np.testing.assert_allclose(small, large, rtol=1e-3, atol=1e-5)
+
+
+def test_max_depth_convention():
+    lamp = {"type": "rectangle", "to_world": mi.ScalarTransform4f().translate([0, 0, -1]),
+            "emitter": {"type": "area", "radiance": rgb(1, 1, 1)}}
+    mirror_ball = sphere((0, 0, 1), 0.5, {"type": "conductor", "material": "none"})
+    description = scene(lamp, mirror_ball, floor(), point_light((0, 3, 3)),
+                        sensor=camera(origin=(0, 0, 4), size=16))
+    emitters_only, _ = render(description, max_depth=1)
+    direct, _ = render(description, max_depth=2)
+    bounce, _ = render(description, max_depth=3)
+    nothing, _ = render(description, max_depth=0)
+    assert nothing.max() == 0
+    # Depth 1: the lamp around the ball, nothing else (the ball is black).
+    assert emitters_only.max() == pytest.approx(1.0) and emitters_only[8, 8].max() == 0
+    ball = (emitters_only.max(axis=2) == 0) & (direct.max(axis=2) == 0)
+    assert ball.sum() > 10                    # a mirror has no direct term...
+    assert bounce[ball].max() > 0             # ...but one bounce shows the lamp
+
+
+def test_hide_emitters():
+    lamp = {"type": "rectangle", "emitter": {"type": "area", "radiance": rgb(2, 2, 2)}}
+    description = scene(lamp, sensor=camera(size=8))
+    shown, _ = render(description)
+    hidden, _ = render(description, hide_emitters=True)
+    assert shown.max() == pytest.approx(2.0) and hidden.max() == 0
+
+
+def test_ambient_scales_diffuse_albedo():
+    description = scene(sphere((0, 0, 0), 1, diffuse(0.2, 0.4, 0.6)), sensor=camera(size=9))
+    image, _ = render(description, ambient=[0.5, 0.5, 0.5])
+    np.testing.assert_allclose(image[4, 4], [0.1, 0.2, 0.3], rtol=1e-6)
+
+
+def test_film_crop_and_alpha():
+    crop = {"crop_offset_x": 4, "crop_offset_y": 2, "crop_width": 6, "crop_height": 5,
+            "pixel_format": "rgba"}
+    description = scene(sphere((0, 0, 0), 1, diffuse(0.5, 0.5, 0.5)), point_light((1, 2, 3)),
+                        sensor=camera(size=16, crop=crop))
+    image, _ = render(description)
+    assert image.shape == (5, 6, 4)
+    full, _ = render(scene(sphere((0, 0, 0), 1, diffuse(0.5, 0.5, 0.5)), point_light((1, 2, 3)),
+                           sensor=camera(size=16)))
+    # Same rays up to the rounding of crop-relative film positions.
+    np.testing.assert_allclose(image[..., :3], full[2:7, 4:10], rtol=1e-5, atol=1e-7)
+    assert set(np.unique(image[..., 3])) <= {0.0, 1.0}
+
+
+def test_traverse_shows_parameters():
+    description = scene(sphere((0, 0, 0), 1, diffuse(0.5, 0.5, 0.5)), point_light((1, 2, 3)),
+                        whitted=integrator(max_depth=4))
+    loaded = mi.load_dict(description)
+    params = mi.traverse(loaded)
+    assert params["integrator.max_depth"] == 4
+    for name in ("aa", "aa_threshold", "shadows", "ambient", "min_throughput"):
+        assert f"integrator.{name}" in params
+
+
+def test_render_writes_like_any_film(tmp_path):
+    sensor = camera()
+    sensor["film"]["component_format"] = "float32"
+    loaded = mi.load_dict(scene(sphere((0, 0, 0), 1, diffuse(0.5, 0.5, 0.5)),
+                                point_light((1, 2, 3)), whitted=integrator(), sensor=sensor))
+    image = mi.render(loaded)
+    loaded.sensors()[0].film().write(str(tmp_path / "out.exr"))
+    written = np.array(mi.Bitmap(str(tmp_path / "out.exr")))
+    np.testing.assert_array_equal(written[..., :3], np.array(image))
+
+
+BAD = [
+    ({"aa": "supersample"}, "aa"),
+    ({"shadows": "soft"}, "shadows"),
+    ({"aa_threshold": -0.1}, "aa_threshold"),
+    ({"max_depth": -2}, "max_depth"),
+    ({"aa_max_depth": 17}, "aa_max_depth"),
+    ({"aa_max_depth": -1}, "aa_max_depth"),
+    ({"aa_samples": 0}, "aa_samples"),
+    ({"emitter_samples": 0}, "emitter_samples"),
+    ({"min_throughput": -1.0}, "min_throughput"),
+    ({"aa_budget": 1.0}, "aa_budget"),
+    ({"ambient": [-1.0, 0.0, 0.0]}, "ambient"),
+]
+
+
+@pytest.mark.parametrize("settings, parameter", BAD)
+def test_bad_parameter_names_plugin_and_parameter(settings, parameter):
+    with pytest.raises(RuntimeError, match=f"whitted: parameter '{parameter}'"):
+        mi.load_dict(integrator(**settings))
+
+
+def test_scalar_variant_is_refused_clearly():
+    try:
+        mi.set_variant("scalar_rgb")
+        with pytest.raises(RuntimeError, match="whitted: the wavefront integrator needs a JIT"):
+            mi.load_dict(integrator())
+    finally:
+        mitsuba_whitted.set_variant("llvm_ad_rgb")
+    assert isinstance(mi.load_dict(integrator()), mi.SamplingIntegrator)
