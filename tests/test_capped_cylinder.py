@@ -549,6 +549,23 @@ def test_renders_under_aov_with_unit_normals_and_depth():
     assert np.allclose(np.linalg.norm(normals[covered], axis=1), 1, atol=1e-3)
 
 
+def test_area_emitter_on_the_proxy():
+    radiance = [2.0, 3.0, 0.5]
+    scene = mi.load_dict(cylinder_scene(
+        {"type": "path", "max_depth": 3},
+        lamp={"type": "capped_cylinder", "center": [0, -0.5, 0], "radius": 1.5, "height": 2,
+              "emitter": {"type": "area", "radiance": {"type": "rgb", "value": radiance}}},
+        floor={"type": "rectangle", "to_world": mi.ScalarTransform4f().translate([0, -0.5, 0])
+               @ mi.ScalarTransform4f().rotate([1, 0, 0], -90) @ mi.ScalarTransform4f().scale(10)}))
+    lamp = [s for s in scene.shapes() if s.is_emitter()]
+    assert len(lamp) == 1 and lamp[0].surface_area()[0] > 0
+    image = mi.render(scene, spp=4).numpy()
+    assert_finite(image)
+    # The camera looks at the lamp's middle: seen directly, an area emitter
+    # shows exactly its radiance.
+    assert np.allclose(image[16, 16], radiance, rtol=1e-5)
+
+
 XML_WITH_BSDF = """
 <scene version="3.0.0">
     <shape type="capped_cylinder" id="yellow">

@@ -10,14 +10,15 @@ both spaces: a caller transforms its ray (:func:`world_ray_to_canonical`),
 intersects here, and uses ``t`` directly in world space.
 
 Precision: the solve runs in float64 (:func:`compute_float`) whatever the
-input precision. In float32 the quadratic is already free of cancellation
-(see :func:`side_interval`), so ``t`` is accurate to a few ulp for near and
-far rays alike *except* near tangency, where ``t`` depends on the square root
-of the rounding error (about 3e-4 relative on unit-scale rays), and the hit
-point ``o + t d`` of a ray from 1e4 away is off the true ray by ulp(1e4) ~
-1e-3. Float64 removes both (``t`` and ``p`` are then exact to float32
-rounding) for about twice the cost of this routine alone, which only runs on
-rays that already hit the cylinder's proxy mesh.
+input precision. Measured against a long-double reference on float32 rays:
+the same code in float32 (already free of cancellation, see
+:func:`side_interval`) errs by up to 6e-5 in relative ``t`` (tangent rays,
+origins inside), flips hit/miss for rays within ~1e-7 of the silhouette,
+and puts the hit point of a ray from 1e4 away 2e-3 off the ray (ulp(1e4)).
+In float64, ``t`` and the point are exact to float32 rounding (6e-8, 3e-8)
+and no ray flips, for 1.3x the time of this routine (31 against 42 M
+rays/s for 1e6 rays on two CPU cores, LLVM), which only runs on rays that
+already hit the cylinder's proxy mesh.
 
 Conventions of the result (:class:`CanonicalHit`):
 
