@@ -25,7 +25,12 @@ __version__ = "0.1.0"
 #: derive from variant-specific Mitsuba types, so they are (re)imported after
 #: every variant change.
 PLUGIN_MODULES = (
-    # "integrators.whitted",
+    "shapes.capped_cylinder",
+    "bsdfs.phong",
+    "textures.tartan",
+    "textures.sphere_map",
+    "textures.planar_map",
+    "integrators.whitted",
 )
 
 DEFAULT_VARIANT = "llvm_ad_rgb"

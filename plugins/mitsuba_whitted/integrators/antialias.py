@@ -29,7 +29,7 @@ QUADRANTS = ((0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75))
 
 #: ``shade(positions, keys) -> (radiance, alpha)``: positions are in pixel
 #: units inside the crop window, keys identify samples for decorrelation.
-ShadeFn = Callable[[mi.Point2f, mi.UInt32], tuple]
+ShadeFn = Callable[["mi.Point2f", "mi.UInt32"], tuple]
 
 
 @dataclass

@@ -126,6 +126,10 @@ class DirectLighting:
 
     def radiance(self, si, bsdf, key, active) -> mi.Color3f:
         result = mi.Color3f(0)
+        if not self.needs.smooth_surfaces:
+            return result
+        # Lights are seen only through the smooth (non-delta) part of a BSDF.
+        active &= mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
         if self.use_ambient:
             diffuse = mi.has_flag(bsdf.flags(), mi.BSDFFlags.Diffuse)
             albedo = bsdf.eval_diffuse_reflectance(si, active & diffuse)

@@ -28,6 +28,8 @@ class SceneNeeds:
     null_surfaces: bool = False
     #: Some BSDF transmits light at all (delta transmission or null).
     transmissive: bool = False
+    #: Some BSDF has a smooth (diffuse or glossy) part that lights reach.
+    smooth_surfaces: bool = False
     #: Shapes whose hits are refined by an exact analytic intersection.
     analytic_shapes: list = field(default_factory=list)
 
@@ -72,5 +74,6 @@ def analyse(scene: mi.Scene) -> SceneNeeds:
         bsdfs, mi.BSDFFlags.DeltaTransmission, without=mi.BSDFFlags.Null)
     needs.null_surfaces = any(mi.has_flag(b.flags(), mi.BSDFFlags.Null) for b in bsdfs)
     needs.transmissive = bool(needs.transmission_components) or needs.null_surfaces
+    needs.smooth_surfaces = any(mi.has_flag(b.flags(), mi.BSDFFlags.Smooth) for b in bsdfs)
     needs.analytic_shapes = [s for s in scene.shapes() if hasattr(s, "world_to_canonical_matrix")]
     return needs
