@@ -1,0 +1,48 @@
+"""Plugins register for whichever variant is active, before or after import."""
+
+import subprocess
+import sys
+
+import mitsuba as mi
+import pytest
+
+import mitsuba_whitted
+
+PLUGINS = {"whitted", "phong", "capped_cylinder", "tartan", "sphere_map", "planar_map"}
+
+
+def test_every_plugin_is_registered():
+    assert set(mitsuba_whitted.registered_plugins()) == PLUGINS
+
+
+def run_python(code: str) -> str:
+    return subprocess.run([sys.executable, "-c", code], check=True, capture_output=True,
+                          text=True, timeout=300).stdout
+
+
+@pytest.mark.parametrize("order", ["variant first", "import first"])
+def test_registration_order(order):
+    steps = ["import mitsuba_whitted", "import mitsuba as mi",
+             "mi.set_variant('llvm_ad_rgb')"]
+    if order == "variant first":
+        steps = ["import mitsuba as mi", "mi.set_variant('llvm_ad_rgb')",
+                 "import mitsuba_whitted"]
+    code = "; ".join(steps + [
+        "print(type(mi.load_dict({'type': 'whitted'})).__name__)",
+        "print(type(mi.load_dict({'type': 'tartan'})).__name__)"])
+    assert run_python(code).split() == ["WhittedIntegrator", "Tartan"]
+
+
+def test_plugins_follow_variant_changes():
+    try:
+        mi.set_variant("scalar_rgb")
+        assert mi.load_dict({"type": "phong"}) is not None
+    finally:
+        mitsuba_whitted.set_variant("llvm_ad_rgb")
+    integrator = mi.load_dict({"type": "whitted"})
+    assert isinstance(integrator, mi.SamplingIntegrator)
+
+
+def test_unknown_variant_is_one_sentence():
+    with pytest.raises(ValueError, match="variant 'llvm_ad_rgbx' is not available"):
+        mitsuba_whitted.set_variant("llvm_ad_rgbx")
