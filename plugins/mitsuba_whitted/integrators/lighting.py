@@ -129,7 +129,7 @@ class DirectLighting:
         if not self.needs.smooth_surfaces:
             return result
         # Lights are seen only through the smooth (non-delta) part of a BSDF.
-        active &= mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+        active = active & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
         if self.use_ambient:
             diffuse = mi.has_flag(bsdf.flags(), mi.BSDFFlags.Diffuse)
             albedo = bsdf.eval_diffuse_reflectance(si, active & diffuse)

@@ -1,0 +1,159 @@
+"""``mitsuba-whitted``: render scenes and report on the installation.
+
+    mitsuba-whitted render SCENE.xml -o OUT.png [--variant V] [-D name=value ...]
+    mitsuba-whitted info
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+
+class UsageError(Exception):
+    """Bad input from the command line, reported as one sentence."""
+
+
+def _parse_defines(pairs: list[str]) -> dict:
+    defines = {}
+    for pair in pairs:
+        name, sep, value = pair.partition("=")
+        if not sep or not name:
+            raise UsageError(f"mitsuba-whitted: -D expects name=value (got '{pair}').")
+        defines[name] = value
+    return defines
+
+
+def one_sentence(error: BaseException) -> str:
+    """The useful line of an error raised through Mitsuba's plugin loader:
+    Mitsuba wraps a plugin's exception with the Python traceback text."""
+    text = str(error).strip()
+    lines = [line.strip() for line in text.splitlines() if line.strip()]
+    for line in reversed(lines):
+        for prefix in ("ParameterError: ", "VariantError: ", "LLVMError: ", "ValueError: "):
+            if line.startswith(prefix):
+                return line[len(prefix):]
+    return lines[0] if lines else type(error).__name__
+
+
+class Progress:
+    """A one-line progress display on a terminal, silent otherwise."""
+
+    def __init__(self, stream=sys.stderr, min_interval: float = 0.2):
+        self.stream = stream
+        self.enabled = stream.isatty()
+        self.min_interval = min_interval
+        self.last = 0.0
+        self.start = time.perf_counter()
+
+    def __call__(self, done: int, total: int, what: str) -> None:
+        now = time.perf_counter()
+        if not self.enabled or (now - self.last < self.min_interval and done < total):
+            return
+        self.last = now
+        width = 30
+        filled = int(width * done / max(total, 1))
+        self.stream.write(f"\r  [{'#' * filled}{'.' * (width - filled)}] "
+                          f"{done}/{total} {what}, {now - self.start:.1f} s ")
+        self.stream.flush()
+
+    def finish(self) -> None:
+        if self.enabled:
+            self.stream.write("\r" + " " * 79 + "\r")
+            self.stream.flush()
+
+
+def _load_scene(path: str, defines: dict):
+    import os
+
+    import mitsuba as mi
+
+    if not os.path.isfile(path):
+        raise UsageError(f"mitsuba-whitted: scene file '{path}' does not exist.")
+    return mi.load_file(path, **defines)
+
+
+def command_render(args) -> int:
+    import drjit as dr
+    import mitsuba as mi
+
+    import mitsuba_whitted
+    from .imageio import write_image
+
+    mitsuba_whitted.set_variant(args.variant)
+    started = time.perf_counter()
+    scene = _load_scene(args.scene, _parse_defines(args.define))
+    loaded = time.perf_counter()
+    integrator = scene.integrator()
+    progress = Progress()
+    if hasattr(integrator, "progress"):
+        integrator.progress = progress
+    image = mi.render(scene)
+    dr.sync_thread()
+    rendered = time.perf_counter()
+    progress.finish()
+    write_image(args.output, image.numpy())
+    height, width = image.shape[:2]
+    seconds = rendered - loaded
+    stats = getattr(integrator, "last_stats", {})
+    rays = stats.get("total")
+    ray_text = f", {rays / 1e6:.2f} M rays, {rays / seconds / 1e6:.1f} M rays/s" if rays else ""
+    print(f"{args.output}: {width}x{height} rendered in {seconds:.3f} s{ray_text} "
+          f"(scene loaded in {loaded - started:.2f} s)")
+    return 0
+
+
+def command_info(args) -> int:
+    import drjit as dr
+    import mitsuba as mi
+
+    import mitsuba_whitted
+    from . import llvm
+
+    mitsuba_whitted.set_variant(args.variant)
+    path = llvm.loaded_library() or llvm.configure()
+    version = ".".join(str(v) for v in dr.detail.llvm_version()) if args.variant.startswith("llvm") else "-"
+    print(f"mitsuba-whitted {mitsuba_whitted.__version__}")
+    print(f"mitsuba {mi.__version__}, drjit {dr.__version__}, variant {mi.variant()}")
+    print(f"libLLVM: {path} (version {version})")
+    print(f"plugins: {', '.join(mitsuba_whitted.registered_plugins())}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from . import DEFAULT_VARIANT
+
+    parser = argparse.ArgumentParser(
+        prog="mitsuba-whitted",
+        description="Whitted ray tracing for Mitsuba 3 scenes.")
+    commands = parser.add_subparsers(dest="command", required=True)
+
+    render = commands.add_parser("render", help="render a scene to an image")
+    render.add_argument("scene", help="Mitsuba scene file (XML)")
+    render.add_argument("-o", "--output", required=True,
+                        help="output image (.png, .jpg, .exr, .hdr, .pfm)")
+    render.add_argument("-D", "--define", action="append", default=[], metavar="NAME=VALUE",
+                        help="set a $NAME default of the scene")
+    render.add_argument("--variant", default=DEFAULT_VARIANT)
+    render.set_defaults(run=command_render)
+
+    info = commands.add_parser("info", help="variant, libLLVM and plugins")
+    info.add_argument("--variant", default=DEFAULT_VARIANT)
+    info.set_defaults(run=command_info)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.run(args)
+    except UsageError as error:
+        print(error, file=sys.stderr)
+    except (RuntimeError, ValueError, OSError) as error:
+        print(one_sentence(error), file=sys.stderr)
+    return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
