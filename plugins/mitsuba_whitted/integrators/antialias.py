@@ -24,6 +24,8 @@ from typing import Callable
 import drjit as dr
 import mitsuba as mi
 
+from ..jit import index_range, opaque_float, sum_blocks
+
 #: Quadrant centres of the unit cell, in the order children are stored.
 QUADRANTS = ((0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75))
 
@@ -43,16 +45,6 @@ class SampleCount:
     per_pixel: object = None
 
 
-def _sum_blocks(values, block: int):
-    """Sum of each run of ``block`` consecutive entries, in a fixed order."""
-    count = dr.width(values) // block
-    base = dr.arange(mi.UInt32, count) * block
-    total = dr.gather(type(values), values, base)
-    for k in range(1, block):
-        total += dr.gather(type(values), values, base + k)
-    return total
-
-
 def _grid_positions(width: int, height: int, n: int):
     """Centres of an n x n grid in every pixel, pixel-major."""
     index = dr.arange(mi.UInt32, width * height * n * n)
@@ -70,7 +62,7 @@ def render_grid(width: int, height: int, n: int, shade: ShadeFn):
         return radiance, alpha, SampleCount(dr.width(positions), 0, (dr.width(positions),))
     scale = 1.0 / (n * n)
     count = SampleCount(dr.width(positions), 0, (dr.width(positions),))
-    return _sum_blocks(radiance, n * n) * scale, _sum_blocks(alpha, n * n) * scale, count
+    return sum_blocks(radiance, n * n) * scale, sum_blocks(alpha, n * n) * scale, count
 
 
 def _quadrant_positions(origins: mi.Point2f, size: float) -> mi.Point2f:
@@ -80,13 +72,13 @@ def _quadrant_positions(origins: mi.Point2f, size: float) -> mi.Point2f:
     corner = dr.gather(mi.Point2f, origins, cell)
     qx = mi.Float(quadrant % 2) * 0.5 + 0.25
     qy = mi.Float(quadrant // 2) * 0.5 + 0.25
-    return mi.Point2f(corner + mi.Vector2f(qx, qy) * size)
+    return mi.Point2f(corner + mi.Vector2f(qx, qy) * opaque_float(size))
 
 
 def _differs(colors: mi.Color3f, threshold: float) -> mi.Bool:
     """Per quadrant: whether it differs from the mean of its 3 siblings."""
     clamped = dr.clip(colors, 0.0, 1.0)
-    total = dr.repeat(_sum_blocks(clamped, 4), 4)
+    total = dr.repeat(sum_blocks(clamped, 4), 4)
     others = (total - clamped) / 3.0
     return dr.max(dr.abs(clamped - others)) > threshold
 
@@ -108,7 +100,7 @@ class AdaptiveSampler:
         size = 1.0
         while True:
             positions = _quadrant_positions(origins, size)
-            keys = dr.arange(mi.UInt32, dr.width(positions)) + count.samples
+            keys = index_range(count.samples, count.samples + dr.width(positions))
             radiance, alpha = shade(positions, keys)
             count.samples += dr.width(positions)
             count.per_level += (dr.width(positions),)
@@ -119,7 +111,7 @@ class AdaptiveSampler:
             if split is None:
                 break
             cells = dr.compress(split)
-            origins = mi.Point2f(dr.gather(mi.Point2f, positions, cells) - size / 4)
+            origins = mi.Point2f(dr.gather(mi.Point2f, positions, cells) - opaque_float(size / 4))
             size *= 0.5
             levels[-1] = (radiance, alpha, cells)
         count.levels = len(levels) - 1
@@ -147,9 +139,9 @@ class AdaptiveSampler:
         child_radiance, child_alpha = None, None
         for radiance, alpha, cells in reversed(levels):
             if child_radiance is not None:
-                mean_radiance = _sum_blocks(child_radiance, 4) * 0.25
-                mean_alpha = _sum_blocks(child_alpha, 4) * 0.25
+                mean_radiance = sum_blocks(child_radiance, 4) * 0.25
+                mean_alpha = sum_blocks(child_alpha, 4) * 0.25
                 dr.scatter(radiance, mean_radiance, cells)
                 dr.scatter(alpha, mean_alpha, cells)
             child_radiance, child_alpha = radiance, alpha
-        return _sum_blocks(child_radiance, 4) * 0.25, _sum_blocks(child_alpha, 4) * 0.25
+        return sum_blocks(child_radiance, 4) * 0.25, sum_blocks(child_alpha, 4) * 0.25

@@ -25,13 +25,9 @@ from dataclasses import dataclass, field
 import drjit as dr
 import mitsuba as mi
 
+from ..jit import index_range, to_int
 from .lighting import DirectLighting, ShadowTester
 from .scene_needs import SceneNeeds
-
-
-def _to_int(value) -> int:
-    """A count kept lazily on the device (size-1 array) or on the host."""
-    return int(value[0]) if dr.is_array_v(value) else int(value)
 
 
 @dataclass
@@ -48,7 +44,7 @@ class RayStats:
     KINDS = ("camera", "reflection", "refraction", "passthrough", "shadow")
 
     def as_dict(self) -> dict:
-        counts = {kind: _to_int(getattr(self, kind)) for kind in self.KINDS}
+        counts = {kind: to_int(getattr(self, kind)) for kind in self.KINDS}
         counts["total"] = sum(counts.values())
         counts["generations"] = self.generations
         counts["batches"] = self.batches
@@ -117,7 +113,7 @@ class RayTreeTracer:
         folded = dr.zeros(mi.Color3f, len(rays) * self.fan_out)
         step = self.settings.wavefront_size
         for start in range(0, len(children), step):
-            part = dr.arange(mi.UInt32, start, min(start + step, len(children)))
+            part = index_range(start, min(start + step, len(children)))
             radiance, _ = self._trace(children.take(part), generation + 1)
             dr.scatter(folded, radiance, dr.gather(mi.UInt32, slots, part))
         return local + self._sum_children(folded, len(rays)), alpha

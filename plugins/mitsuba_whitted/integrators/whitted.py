@@ -4,6 +4,7 @@ import drjit as dr
 import mitsuba as mi
 
 from ..camera import camera_rays
+from ..jit import index_range
 from ..errors import ParameterError, VariantError, check, check_choice
 from . import antialias
 from .lighting import DirectLighting, LightingSettings, ShadowTester
@@ -210,7 +211,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
             radiance = dr.zeros(mi.Color3f, total)
             alpha = dr.zeros(mi.Float, total)
             for start in range(0, total, self.wavefront_size):
-                part = dr.arange(mi.UInt32, start, min(start + self.wavefront_size, total))
+                part = index_range(start, min(start + self.wavefront_size, total))
                 ray, weight = camera_rays(sensor, dr.gather(mi.Point2f, positions, part))
                 rays = RayBatch(ray.o, ray.d, mi.Color3f(weight),
                                 dr.gather(mi.UInt32, keys, part))

@@ -1,0 +1,36 @@
+"""Small Dr.Jit helpers shared by the wavefront code.
+
+Python numbers that change from call to call (offsets, sizes, levels) are
+passed as *opaque* values: a literal would be baked into the kernel and
+every new value would compile a new kernel.
+"""
+
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+
+
+def index_range(start: int, stop: int) -> "mi.UInt32":
+    """``start, start + 1, ..., stop - 1`` without baking ``start`` into a kernel."""
+    return dr.arange(mi.UInt32, stop - start) + dr.opaque(mi.UInt32, start)
+
+
+def opaque_float(value: float) -> "mi.Float":
+    return dr.opaque(mi.Float, value)
+
+
+def sum_blocks(values, block: int):
+    """Sum of each run of ``block`` consecutive entries, in a fixed order
+    (deterministic, unlike atomic scatter-adds)."""
+    count = dr.width(values) // block
+    base = dr.arange(mi.UInt32, count) * block
+    total = dr.gather(type(values), values, base)
+    for k in range(1, block):
+        total += dr.gather(type(values), values, base + k)
+    return total
+
+
+def to_int(value) -> int:
+    """A count kept lazily on the device (size-1 array) or on the host."""
+    return int(value[0]) if dr.is_array_v(value) else int(value)
