@@ -7,6 +7,8 @@ import pytest
 import mitsuba_whitted
 
 VARIANT = mitsuba_whitted.DEFAULT_VARIANT
+# Set at import so test modules can build Mitsuba values at module level.
+mitsuba_whitted.set_variant(VARIANT)
 
 
 @pytest.fixture(autouse=True, scope="session")

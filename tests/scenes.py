@@ -5,12 +5,13 @@ from __future__ import annotations
 import mitsuba as mi
 
 
-def camera(origin=(0, 0, 5), target=(0, 0, 0), up=(0, 1, 0), fov=40, size=24, crop=None):
+def camera(origin=(0, 0, 5), target=(0, 0, 0), up=(0, 1, 0), fov=40, size=24, crop=None,
+           far_clip=1e4):
     film = {"type": "hdrfilm", "width": size, "height": size, "rfilter": {"type": "box"}}
     if crop is not None:
         film.update(crop)
     return {
-        "type": "perspective", "fov": fov,
+        "type": "perspective", "fov": fov, "far_clip": far_clip,
         "to_world": mi.ScalarTransform4f().look_at(origin=origin, target=target, up=up),
         "film": film,
     }

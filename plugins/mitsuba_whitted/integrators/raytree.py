@@ -38,6 +38,8 @@ class RayStats:
     refraction: object = 0
     passthrough: object = 0
     shadow: object = 0
+    #: Hits on analytic proxies made exact (not extra rays).
+    refined: object = 0
     generations: int = 0
     batches: int = 0
 
@@ -46,6 +48,7 @@ class RayStats:
     def as_dict(self) -> dict:
         counts = {kind: to_int(getattr(self, kind)) for kind in self.KINDS}
         counts["total"] = sum(counts.values())
+        counts["refined"] = to_int(self.refined)
         counts["generations"] = self.generations
         counts["batches"] = self.batches
         return counts
@@ -82,12 +85,13 @@ class RayTreeTracer:
     """Traces batches of camera rays to radiance, generation by generation."""
 
     def __init__(self, scene: mi.Scene, needs: SceneNeeds, settings: TreeSettings,
-                 lighting: DirectLighting, intersect):
+                 lighting: DirectLighting, intersect, refiner=None):
         self.scene = scene
         self.needs = needs
         self.settings = settings
         self.lighting = lighting
         self.intersect = intersect
+        self.refiner = refiner
         self.components = [("delta", c) for c in needs.delta_components]
         if needs.null_surfaces:
             self.components.append(("null", None))
@@ -131,6 +135,8 @@ class RayTreeTracer:
         ray = mi.Ray3f(rays.o, rays.d)
         si = self.intersect(ray, mi.Bool(True))
         hit = si.is_valid()
+        if self.refiner is not None:
+            self.stats.refined = self.stats.refined + dr.count(self.refiner.on_proxy(si, hit))
         local = mi.Color3f(0)
         if generation + 1 <= depth and not (generation == 0 and self.settings.hide_emitters):
             local += si.emitter(self.scene).eval(si)

@@ -7,6 +7,7 @@ from ..camera import camera_rays
 from ..jit import index_range
 from ..errors import ParameterError, VariantError, check, check_choice
 from . import antialias
+from .analytic import AnalyticRefiner
 from .lighting import DirectLighting, LightingSettings, ShadowTester
 from .raytree import RayBatch, RayTreeTracer, TreeSettings
 from .scene_needs import analyse
@@ -162,7 +163,8 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     def make_tracer(self, scene: mi.Scene, seed: int = 0) -> RayTreeTracer:
         """A ray-tree tracer specialised to what ``scene`` contains."""
         needs = analyse(scene)
-        intersect = _plain_intersect(scene)
+        refiner = AnalyticRefiner(scene, needs.analytic_shapes) if needs.analytic_shapes else None
+        intersect = refiner.intersect if refiner else _plain_intersect(scene)
         shadows = ShadowTester(scene, needs, self.shadows, intersect)
         lighting = DirectLighting(
             needs, LightingSettings(self.ambient, self.shadows, self.emitter_samples, seed),
@@ -170,7 +172,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         depth = UNBOUNDED_DEPTH if self.max_depth == -1 else self.max_depth
         settings = TreeSettings(depth, self.min_throughput, self.hide_emitters,
                                 self.wavefront_size)
-        return RayTreeTracer(scene, needs, settings, lighting, intersect)
+        return RayTreeTracer(scene, needs, settings, lighting, intersect, refiner)
 
     # ---------------------------------------------------------------- render
 

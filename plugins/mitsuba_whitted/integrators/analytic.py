@@ -1,0 +1,127 @@
+"""Exact analytic surfaces behind mesh proxies.
+
+Mitsuba 3.9 lets Python shapes only be meshes, so a ``capped_cylinder`` is a
+circumscribed tessellation for the BVH. This module replaces every hit on
+such a proxy by the exact intersection with the true surface: the ray is
+mapped into the shape's canonical space (``t`` is preserved), intersected
+there, and the hit point, normal, frame and uv are rebuilt exactly. A ray
+that crosses the proxy but misses the true surface continues behind it.
+
+All analytic shapes share one table indexed by Mitsuba's shape registry id,
+so any number of cylinders costs one gather, not one pass each.
+
+Known limit: an object lying in the thin sliver between a proxy and its true
+surface (at most r (1 - cos(pi / segments)) deep) can be skipped by a ray
+that is refined onto the true surface behind it.
+"""
+
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from ..geometry.cylinder import intersect_canonical
+
+#: A ray crosses a missed proxy twice (in and out); four lets it pass two
+#: overlapping proxies before giving up (and reporting the proxy hit).
+MAX_PROXY_CROSSINGS = 4
+
+
+def _shape_id(shape) -> int:
+    return int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(shape))[0])
+
+
+def _rows(matrix: np.ndarray) -> list:
+    """The 12 entries of the top three rows of an affine 4x4 matrix."""
+    return list(np.asarray(matrix, dtype=np.float64)[:3, :4].ravel())
+
+
+class AnalyticRefiner:
+    """``intersect(ray, active)``: Mitsuba's intersection, with hits on
+    analytic proxies replaced by the exact surface."""
+
+    def __init__(self, scene: mi.Scene, shapes: list):
+        self.scene = scene
+        ids = [_shape_id(shape) for shape in shapes]
+        size = max(ids) + 1
+        to_canonical = np.zeros((size, 12))
+        to_world = np.zeros((size, 12))
+        analytic = np.zeros(size, dtype=bool)
+        for shape, index in zip(shapes, ids):
+            to_canonical[index] = _rows(shape.world_to_canonical_matrix())
+            to_world[index] = _rows(shape.canonical_to_world_matrix())
+            analytic[index] = True
+        self.F64 = dr.float64_array_t(mi.Float)
+        self.to_canonical = self.F64(to_canonical.ravel())
+        self.to_world = self.F64(to_world.ravel())
+        self.analytic = mi.Bool(analytic)
+        self.size = size
+
+    def on_proxy(self, si: mi.SurfaceInteraction3f, active) -> mi.Bool:
+        index = dr.reinterpret_array(mi.UInt32, si.shape)
+        inside = active & si.is_valid() & (index < self.size)
+        return inside & dr.gather(mi.Bool, self.analytic, index, inside)
+
+    @dr.syntax
+    def intersect(self, ray: mi.Ray3f, active: mi.Bool) -> mi.SurfaceInteraction3f:
+        si = self.scene.ray_intersect(ray, active)
+        pending = self.on_proxy(si, active)
+        # ``current`` only finds the next proxy behind a missed one; the exact
+        # test always uses the original ray, so offsets taken to leave a
+        # proxy face never move the line that is tested.
+        current = mi.Ray3f(ray)
+        travelled = mi.Float(0)      # ray parameter of ``current``'s origin
+        crossings = mi.UInt32(0)
+        while pending:
+            hit, t, p, n, uv = self._exact(si, ray, pending)
+            self._fill(si, ray, hit, t, p, n, uv)
+            missed = pending & ~hit
+            travelled[missed] = travelled + si.t
+            current[missed] = si.spawn_ray(ray.d)
+            current.maxt[missed] = ray.maxt - travelled
+            si[missed] = self.scene.ray_intersect(current, missed)
+            si.t[missed] = si.t + travelled
+            crossings += 1
+            pending = missed & self.on_proxy(si, missed) & (crossings < MAX_PROXY_CROSSINGS)
+        return si
+
+    def _matrix_rows(self, table, index, active):
+        base = index * 12
+        return [[dr.gather(self.F64, table, base + 4 * i + j, active) for j in range(4)]
+                for i in range(3)]
+
+    def _exact(self, si, ray, active):
+        """Exact hit of ``ray`` with the analytic shape ``si`` lies on."""
+        index = dr.reinterpret_array(mi.UInt32, si.shape)
+        m = self._matrix_rows(self.to_canonical, index, active)
+        o = [self.F64(c) for c in (ray.o.x, ray.o.y, ray.o.z)]
+        d = [self.F64(c) for c in (ray.d.x, ray.d.y, ray.d.z)]
+        o_c = [m[i][0] * o[0] + m[i][1] * o[1] + m[i][2] * o[2] + m[i][3] for i in range(3)]
+        d_c = [m[i][0] * d[0] + m[i][1] * d[1] + m[i][2] * d[2] for i in range(3)]
+        exact = intersect_canonical(_Triple(o_c), _Triple(d_c), mi.Float(0.0), ray.maxt, active)
+        w = self._matrix_rows(self.to_world, index, active)
+        p = [w[i][0] * exact.p.x + w[i][1] * exact.p.y + w[i][2] * exact.p.z + w[i][3]
+             for i in range(3)]
+        # Normals take the inverse transpose: n_world = W^T n_canonical.
+        n = [m[0][j] * exact.n.x + m[1][j] * exact.n.y + m[2][j] * exact.n.z for j in range(3)]
+        return (exact.valid, exact.t, mi.Point3f(*[mi.Float(c) for c in p]),
+                dr.normalize(mi.Normal3f(*[mi.Float(c) for c in n])), exact.uv)
+
+    @staticmethod
+    def _fill(si, ray, hit, t, p, n, uv):
+        si.t[hit] = t
+        si.p[hit] = p
+        si.n[hit] = n
+        si.sh_frame[hit] = mi.Frame3f(n)
+        si.uv[hit] = uv
+        si.dp_du[hit] = si.sh_frame.s
+        si.dp_dv[hit] = si.sh_frame.t
+        si.wi[hit] = si.to_local(-ray.d)
+
+
+class _Triple:
+    """x, y, z access to three arrays (float64 canonical coordinates)."""
+
+    def __init__(self, values):
+        self.x, self.y, self.z = values
