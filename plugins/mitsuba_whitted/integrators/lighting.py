@@ -122,12 +122,13 @@ class DirectLighting:
         self.settings = settings
         self.shadows = shadows
         self.use_ambient = dr.any(settings.ambient != 0)
-        self.shadow_rays = 0  # counted lazily on the device
 
-    def radiance(self, si, bsdf, key, active) -> mi.Color3f:
+    def radiance(self, si, bsdf, key, active):
+        """Reflected radiance, and the shadow rays each lane cast."""
         result = mi.Color3f(0)
+        shadow_rays = mi.UInt32(0)
         if not self.needs.smooth_surfaces:
-            return result
+            return result, shadow_rays
         # Lights are seen only through the smooth (non-delta) part of a BSDF.
         active = active & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
         if self.use_ambient:
@@ -137,13 +138,12 @@ class DirectLighting:
         for light in self.needs.delta_lights:
             radiance, lit = self._from_light(light, si, bsdf, mi.Point2f(0.5), active)
             result += radiance
-            self.shadow_rays = self.shadow_rays + dr.count(lit)
+            shadow_rays += mi.UInt32(lit)
         for index, light in enumerate(self.needs.sampled_lights):
-            result += self._sampled(light, index, si, bsdf, key, active)
-            # One shadow ray per sample and hit (a few are skipped when unlit).
-            samples = self.settings.emitter_samples
-            self.shadow_rays = self.shadow_rays + dr.count(active) * samples
-        return result
+            radiance, cast = self._sampled(light, index, si, bsdf, key, active)
+            result += radiance
+            shadow_rays += cast
+        return result, shadow_rays
 
     def _from_light(self, light, si, bsdf, sample, active):
         """Shadowed radiance from one light sample, and where it was tested."""
@@ -159,12 +159,15 @@ class DirectLighting:
         count = self.settings.emitter_samples
         rotation = _unit_pair(key, self.settings.seed * 7919 + index)
         total = mi.Color3f(0)
+        cast = mi.UInt32(0)
         s = mi.UInt32(0)
         while s < count:
             step = mi.Float(s)
             u = mi.Point2f(rotation[0] + step * R2_STEP[0],
                            rotation[1] + step * R2_STEP[1])
             u -= dr.floor(u)
-            total += self._from_light(light, si, bsdf, u, active)[0]
+            radiance, lit = self._from_light(light, si, bsdf, u, active)
+            total += radiance
+            cast += mi.UInt32(lit)
             s += 1
-        return total / count
+        return total / count, cast

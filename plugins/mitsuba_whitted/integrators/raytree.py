@@ -54,6 +54,10 @@ class RayStats:
         return counts
 
 
+#: Codes stored per candidate child; 0 means "no child".
+KIND_CODES = {"reflection": 1, "refraction": 2, "passthrough": 3}
+
+
 class RayBatch:
     """Rays of one generation: origin, direction, throughput, hash key."""
 
@@ -104,9 +108,7 @@ class RayTreeTracer:
     def trace(self, rays: RayBatch):
         """Radiance and alpha (primary hit) of each camera ray."""
         self.stats.camera += len(rays)
-        radiance, alpha = self._trace(rays, 0)
-        self.stats.shadow = self.lighting.shadow_rays
-        return radiance, alpha
+        return self._trace(rays, 0)
 
     def _trace(self, rays: RayBatch, generation: int):
         self.stats.batches += 1
@@ -130,69 +132,92 @@ class RayTreeTracer:
         return total
 
     def _shade(self, rays: RayBatch, generation: int):
-        """Local radiance of one generation and its compacted children."""
+        """Local radiance of one generation and its compacted children.
+
+        Everything a generation computes (radiance, alpha, the children's
+        buffers, the per-lane ray counts) is evaluated in one kernel; the
+        counts are reduced afterwards from evaluated arrays, so nothing is
+        traced twice."""
         depth = self.settings.max_depth
         ray = mi.Ray3f(rays.o, rays.d)
         si = self.intersect(ray, mi.Bool(True))
         hit = si.is_valid()
-        if self.refiner is not None:
-            self.stats.refined = self.stats.refined + dr.count(self.refiner.on_proxy(si, hit))
         local = mi.Color3f(0)
         if generation + 1 <= depth and not (generation == 0 and self.settings.hide_emitters):
             local += si.emitter(self.scene).eval(si)
-        children = slots = None
+        outputs = {"alpha": mi.Float(hit)}
+        if self.refiner is not None:
+            outputs["refined"] = self.refiner.on_proxy(si, hit)
+        children = None
         if generation + 2 <= depth:
             bsdf = si.bsdf(ray)
-            local += self.lighting.radiance(si, bsdf, rays.key, hit)
-            if self.fan_out and generation + 2 <= depth:
-                children, slots = self._spawn(si, bsdf, ray, rays, hit)
+            radiance, outputs["shadow"] = self.lighting.radiance(si, bsdf, rays.key, hit)
+            local += radiance
+            if self.fan_out:
+                children = self._spawn(si, bsdf, ray, rays, hit)
         local *= rays.throughput
-        alpha = mi.Float(hit)
-        dr.eval(local, alpha)
-        return local, alpha, children, slots
+        pending = [local, *outputs.values()]
+        if children is not None:
+            pending += [*children[0], children[1]]
+        dr.eval(*pending)
+        self._count_lanes(outputs, children)
+        if children is None:
+            return local, outputs["alpha"], None, None
+        return (local, outputs["alpha"]) + self._compact(*children)
 
     def _spawn(self, si, bsdf, ray, rays: RayBatch, active):
-        """Children in (parent, component) order, pruned and compacted."""
+        """Every candidate child, in (parent, component) order, and a code
+        per slot: 0 none (or pruned), else the kind of ray (KIND_CODES)."""
         n, k = len(rays), self.fan_out
         width = n * k
-        buffers = [dr.zeros(mi.Point3f, width), dr.zeros(mi.Vector3f, width),
-                   dr.zeros(mi.Color3f, width), dr.zeros(mi.UInt32, width)]
-        valid = dr.zeros(mi.Bool, width)
+        buffers = [dr.empty(mi.Point3f, width), dr.empty(mi.Vector3f, width),
+                   dr.empty(mi.Color3f, width), dr.empty(mi.UInt32, width)]
+        codes = dr.empty(mi.UInt32, width)
         slot0 = dr.arange(mi.UInt32, n) * k
         for index, (kind, component) in enumerate(self.components):
-            weight, direction, ok, ray_kind = self._child(kind, component, si, bsdf, ray, active)
+            weight, direction, ok, code = self._child(kind, component, si, bsdf, ray, active)
             throughput = rays.throughput * weight
             ok &= dr.max(throughput) > max(self.settings.min_throughput, 0.0)
             child = si.spawn_ray(direction)
             key = mi.sample_tea_32(rays.key, mi.UInt32(index + 1))[0]
             for buffer, value in zip(buffers, (child.o, child.d, throughput, key)):
                 dr.scatter(buffer, value, slot0 + index)
-            dr.scatter(valid, ok, slot0 + index)
-            self._count(ray_kind, ok)
-        slots = dr.compress(valid)
+            dr.scatter(codes, dr.select(ok, code, 0), slot0 + index)
+        return buffers, codes
+
+    def _compact(self, buffers, codes):
+        slots = dr.compress(codes != 0)
         if dr.width(slots) == 0:
             return None, None
-        children = RayBatch(*buffers).take(slots)
-        dr.eval(*children.fields(), slots)
-        return children, slots
+        return RayBatch(*buffers).take(slots), slots
 
     def _child(self, kind, component, si, bsdf, ray, active):
-        """Weight, direction, validity and kind of one delta child per hit."""
+        """Weight, direction, validity and kind code of one delta child."""
         if kind == "null":
             weight = bsdf.eval_null_transmission(si, active)
-            return weight, ray.d, active & dr.any(weight > 0), "passthrough"
+            return weight, ray.d, active & dr.any(weight > 0), mi.UInt32(KIND_CODES["passthrough"])
         ctx = mi.BSDFContext(mi.TransportMode.Radiance, mi.BSDFFlags.Delta, component)
         bs, weight = bsdf.sample(ctx, si, 0.5, mi.Point2f(0.5), active)
         ok = (active & (bs.pdf > 0) & mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
               & dr.any(weight > 0))
         reflected = mi.has_flag(bs.sampled_type, mi.BSDFFlags.DeltaReflection)
-        return weight, si.to_world(bs.wo), ok, (reflected, "reflection", "refraction")
+        code = dr.select(reflected, KIND_CODES["reflection"], KIND_CODES["refraction"])
+        return weight, si.to_world(bs.wo), ok, mi.UInt32(code)
 
-    def _count(self, kind, ok) -> None:
-        """Adds the number of rays of ``kind`` to the statistics, lazily."""
-        if isinstance(kind, tuple):
-            reflected, first, second = kind
-            self._count(first, ok & reflected)
-            self._count(second, ok & ~reflected)
-            return
-        setattr(self.stats, kind, getattr(self.stats, kind) + dr.count(ok))
+    def _count_lanes(self, outputs: dict, children) -> None:
+        """Add this generation's ray counts to the statistics (lazily: the
+        reductions run on arrays that are already evaluated)."""
+        if "shadow" in outputs:
+            self.stats.shadow = self.stats.shadow + dr.sum(outputs["shadow"])
+        if "refined" in outputs:
+            self.stats.refined = self.stats.refined + dr.count(outputs["refined"])
+        if children is not None:
+            codes = children[1]
+            for kind, code in KIND_CODES.items():
+                if self._may_spawn(kind):
+                    setattr(self.stats, kind, getattr(self.stats, kind) + dr.count(codes == code))
+
+    def _may_spawn(self, kind: str) -> bool:
+        if kind == "passthrough":
+            return self.needs.null_surfaces
+        return bool(self.needs.delta_components)
