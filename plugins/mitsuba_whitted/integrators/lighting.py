@@ -55,10 +55,14 @@ class ShadowTester:
     def transmittance(self, si: mi.SurfaceInteraction3f, target: mi.Point3f,
                       active: mi.Bool) -> mi.Color3f:
         ray = si.spawn_ray_to(target)
+        blocked = self.scene.ray_test(ray, active)
+        free = dr.select(active & ~blocked, mi.Color3f(1), mi.Color3f(0))
         if self.opaque:
-            blocked = self.scene.ray_test(ray, active)
-            return dr.select(active & ~blocked, mi.Color3f(1), mi.Color3f(0))
-        return self._march(ray, target, active)
+            return free
+        # Only rays the fast any-hit test found blocked can still carry light
+        # (through a pass-through surface, or past a proxy that the exact
+        # surface does not fill): march those alone.
+        return free + self._march(ray, target, active & blocked)
 
     @dr.syntax
     def _march(self, ray: mi.Ray3f, target: mi.Point3f, active: mi.Bool) -> mi.Color3f:
