@@ -58,6 +58,10 @@ class AnalyticRefiner:
         self.analytic = mi.Bool(analytic)
         self.size = size
 
+    def tables(self) -> tuple:
+        """The JIT arrays this refiner reads."""
+        return self.to_canonical, self.to_world, self.analytic
+
     def on_proxy(self, si: mi.SurfaceInteraction3f, active) -> mi.Bool:
         index = dr.reinterpret_array(mi.UInt32, si.shape)
         inside = active & si.is_valid() & (index < self.size)

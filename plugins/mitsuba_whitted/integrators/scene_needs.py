@@ -34,6 +34,11 @@ class SceneNeeds:
     analytic_shapes: list = field(default_factory=list)
 
     @property
+    def hittable_emitters(self) -> bool:
+        """Whether a ray can reach emission: an area or environment light."""
+        return bool(self.sampled_lights)
+
+    @property
     def children(self) -> bool:
         """Whether any hit can spawn a secondary (reflected/refracted) ray."""
         return bool(self.delta_components) or self.null_surfaces
