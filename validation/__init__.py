@@ -1,0 +1,1 @@
+"""Validation report of mitsuba-whitted: integrator comparison, speed against error, numerical stability."""
