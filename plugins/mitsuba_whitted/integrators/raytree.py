@@ -20,6 +20,8 @@ traced one after the other (depth first), so memory stays bounded by about
 
 from __future__ import annotations
 
+import gc
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import drjit as dr
@@ -52,6 +54,20 @@ class RayStats:
         counts["generations"] = self.generations
         counts["batches"] = self.batches
         return counts
+
+
+@contextmanager
+def _no_garbage_collection():
+    """Keep Python's cycle collector out of a frozen function's recording:
+    if it frees Dr.Jit memory then, Dr.Jit aborts the process
+    ("enqueue_host_func(): this function cannot be recorded")."""
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if enabled:
+            gc.enable()
 
 
 #: Codes stored per candidate child; 0 means "no child".
@@ -100,6 +116,9 @@ class RayTreeTracer:
         if needs.null_surfaces:
             self.components.append(("null", None))
         self.stats = RayStats()
+        #: When a list, every traced batch is appended to it (benchmarks
+        #: replay the very same rays through Mitsuba's own ray casting).
+        self.captured = None
         self._generation = dr.freeze(self._generation_kernel)
         # JIT data the kernel reads besides the scene: a frozen function must
         # receive it as arguments.
@@ -117,6 +136,8 @@ class RayTreeTracer:
     def _trace(self, rays: RayBatch, generation: int):
         self.stats.batches += 1
         self.stats.generations = max(self.stats.generations, generation + 1)
+        if self.captured is not None:
+            self.captured.append(rays)
         local, alpha, children, slots = self._shade(rays, generation)
         if children is None:
             return local, alpha
@@ -147,8 +168,9 @@ class RayTreeTracer:
             spawn=direct and self.fan_out > 0)
         if not any(work.values()) and generation > 0:
             return dr.zeros(mi.Color3f, len(rays)), None, None, None
-        local, alpha, shadow, refined, candidates = self._generation(
-            self.scene, self._captured, *rays.fields(), **work)
+        with _no_garbage_collection():
+            local, alpha, shadow, refined, candidates = self._generation(
+                self.scene, self._captured, *rays.fields(), **work)
         local = dr.zeros(mi.Color3f, len(rays)) if local is None else local
         if shadow is not None:
             self.stats.shadow = self.stats.shadow + dr.sum(shadow)

@@ -38,11 +38,6 @@ class SceneNeeds:
         """Whether a ray can reach emission: an area or environment light."""
         return bool(self.sampled_lights)
 
-    @property
-    def children(self) -> bool:
-        """Whether any hit can spawn a secondary (reflected/refracted) ray."""
-        return bool(self.delta_components) or self.null_surfaces
-
 
 def _bsdfs(scene: mi.Scene):
     seen = {}

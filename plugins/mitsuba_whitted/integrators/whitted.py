@@ -137,6 +137,9 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         self.last_stats = {}
         #: Camera samples per pixel of the last adaptive render (mi.UInt32).
         self.last_sample_map = None
+        #: Set to keep every ray batch of the next render in ``last_rays``.
+        self.capture_rays = False
+        self.last_rays = None
 
     def _validate(self):
         check(self.max_depth >= -1, PLUGIN_NAME, "max_depth",
@@ -183,6 +186,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         film = sensor.film()
         channels = _prepare_film(film)
         tracer = self.make_tracer(scene, int(seed))
+        tracer.captured = [] if self.capture_rays else None
         width, height = film.crop_size()
         with dr.suspend_grad():
             shade = self._camera_shader(tracer, sensor)
@@ -195,6 +199,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         self.last_stats["aa_levels"] = count.levels
         self.last_stats["aa_budget_hit_at"] = count.budget_hit_at
         self.last_sample_map = count.per_pixel
+        self.last_rays = tracer.captured
         return film.develop() if develop else mi.TensorXf()
 
     def _sample_pixels(self, width, height, shade):

@@ -1,0 +1,312 @@
+"""``mitsuba-whitted bench``: speed, throughput bound, memory and scaling,
+measured side by side in one run.
+
+Every timed JIT computation ends with ``dr.sync_thread()`` before the clock
+stops. Warm figures are medians over repeated renders in one process; the
+first render of a fresh process (tracing and compiling, or loading compiled
+kernels from Dr.Jit's cache) is measured in child processes, once with the
+kernel cache as it is and once with an empty one.
+
+The bound: the rays of a render are replayed through Mitsuba's own
+``scene.ray_intersect`` (camera, reflected and refracted rays) and
+``scene.ray_test`` (shadow rays to the same lights from the same hits); the
+time those take is what a ray tracer on Mitsuba cannot beat, and
+bound / actual is the share of the render spent casting rays.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+DEFAULT_SCENE = Path(__file__).resolve().parents[2] / "scenes" / "cosc363.xml"
+
+
+def peak_rss_mib() -> float:
+    """Peak resident memory of this process so far (Linux reports KiB)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def timed(function, repeats: int) -> list[float]:
+    """Wall times of ``repeats`` calls, each synchronised with the device."""
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        function()
+        dr.sync_thread()
+        times.append(time.perf_counter() - start)
+    return times
+
+
+@dataclass
+class RenderTiming:
+    first: float
+    warm: float
+    warm_all: list
+    stats: dict
+
+
+def time_render(scene: mi.Scene, integrator, repeats: int) -> RenderTiming:
+    """First render (in this process) and median of warm renders."""
+    first = timed(lambda: mi.render(scene, integrator=integrator), 1)[0]
+    warm = timed(lambda: mi.render(scene, integrator=integrator), repeats)
+    return RenderTiming(first, statistics.median(warm), warm, dict(integrator.last_stats))
+
+
+# ------------------------------------------------------------------ bound
+
+
+def _concatenate(batches, fields):
+    """One Dr.Jit array per field from a list of batches (via numpy)."""
+    arrays = []
+    for name, kind in fields:
+        parts = [np.array(getattr(batch, name)) for batch in batches]
+        arrays.append(kind(np.concatenate(parts, axis=-1)) if parts else kind())
+    return arrays
+
+
+def shadow_rays_of(scene: mi.Scene, rays: mi.Ray3f, emitter_samples: int) -> mi.Ray3f:
+    """Shadow rays from the hits of ``rays`` to every light, as the Whitted
+    integrator casts them (hits with a smooth BSDF part only)."""
+    si = scene.ray_intersect(rays)
+    smooth = si.is_valid() & mi.has_flag(si.bsdf(rays).flags(), mi.BSDFFlags.Smooth)
+    origins, directions, lengths = [], [], []
+    for emitter in scene.emitters():
+        delta = mi.has_flag(emitter.flags(), mi.EmitterFlags.Delta)
+        for sample in range(1 if delta else emitter_samples):
+            u = mi.Point2f(0.5) if delta else mi.Point2f(
+                (sample + 0.5) / emitter_samples, ((sample * 0.618034) % 1.0))
+            ds, _ = emitter.sample_direction(si, u, smooth)
+            ray = si.spawn_ray_to(ds.p)
+            keep = dr.compress(smooth & (ds.pdf > 0))
+            origins.append(np.array(dr.gather(mi.Point3f, ray.o, keep)))
+            directions.append(np.array(dr.gather(mi.Vector3f, ray.d, keep)))
+            lengths.append(np.array(dr.gather(mi.Float, ray.maxt, keep)))
+    if not origins:
+        return mi.Ray3f()
+    ray = mi.Ray3f(mi.Point3f(np.concatenate(origins, axis=-1)),
+                   mi.Vector3f(np.concatenate(directions, axis=-1)))
+    ray.maxt = mi.Float(np.concatenate(lengths))
+    return ray
+
+
+@dataclass
+class Bound:
+    closest_rays: int
+    shadow_rays: int
+    intersect_seconds: float
+    test_seconds: float
+
+    @property
+    def seconds(self) -> float:
+        return self.intersect_seconds + self.test_seconds
+
+
+def ray_casting_bound(scene: mi.Scene, batches, emitter_samples: int, repeats: int) -> Bound:
+    """Time of Mitsuba's own ray casting for the rays of one render."""
+    o, d = _concatenate(batches, [("o", mi.Point3f), ("d", mi.Vector3f)])
+    rays = mi.Ray3f(o, d)
+    shadow = shadow_rays_of(scene, rays, emitter_samples)
+    dr.eval(rays, shadow)
+
+    def intersect():
+        dr.eval(scene.ray_intersect(rays))
+
+    def test():
+        dr.eval(scene.ray_test(shadow))
+
+    timed(intersect, 1), timed(test, 1)  # compile
+    return Bound(dr.width(o), dr.width(shadow.o),
+                 statistics.median(timed(intersect, repeats)),
+                 statistics.median(timed(test, repeats)))
+
+
+# -------------------------------------------------------- fresh processes
+
+
+def fresh_process_render(scene_path: Path, defines: dict, empty_cache: bool) -> dict:
+    """Run ``mitsuba-whitted render`` in a child process; its wall time and
+    the render time it reports. An empty kernel cache is a fresh HOME."""
+    env = dict(os.environ)
+    with tempfile.TemporaryDirectory() as tmp:
+        if empty_cache:
+            env["HOME"] = tmp
+            env["XDG_CACHE_HOME"] = os.path.join(tmp, "cache")
+        out = os.path.join(tmp, "bench.exr")
+        args = [sys.executable, "-m", "mitsuba_whitted.cli", "render", str(scene_path), "-o", out]
+        for name, value in defines.items():
+            args += ["-D", f"{name}={value}"]
+        start = time.perf_counter()
+        result = subprocess.run(args, capture_output=True, text=True, env=env, timeout=1800)
+        wall = time.perf_counter() - start
+    if result.returncode != 0:
+        raise RuntimeError(f"mitsuba-whitted bench: the child render failed: {result.stderr.strip()}")
+    line = result.stdout.strip().splitlines()[-1]
+    render = float(line.split(" rendered in ")[1].split(" s")[0])
+    return {"process_seconds": wall, "render_seconds": render}
+
+
+def child_peak_memory(scene_path: Path, defines: dict) -> float:
+    """Peak RSS (MiB) of a child process that loads and renders the scene."""
+    code = ("import sys, json, resource, mitsuba_whitted, mitsuba as mi, drjit as dr\n"
+            "mitsuba_whitted.set_variant('llvm_ad_rgb')\n"
+            "defines = json.loads(sys.argv[2])\n"
+            "scene = mi.load_file(sys.argv[1], **defines)\n"
+            "mi.render(scene); dr.sync_thread()\n"
+            "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)\n")
+    result = subprocess.run([sys.executable, "-c", code, str(scene_path), json.dumps(defines)],
+                            capture_output=True, text=True, timeout=1800)
+    if result.returncode != 0:
+        raise RuntimeError(f"mitsuba-whitted bench: the child render failed: {result.stderr.strip()}")
+    return float(result.stdout.strip().splitlines()[-1])
+
+
+# ----------------------------------------------------------------- scaling
+
+
+@dataclass
+class ScalingRow:
+    parameter: str
+    value: object
+    seconds: float
+    rays: int
+
+    @property
+    def rays_per_second(self) -> float:
+        return self.rays / self.seconds
+
+
+def scaling_table(scene_path: Path, base: dict, sweeps: dict, repeats: int) -> list[ScalingRow]:
+    """Warm render time as each parameter of ``sweeps`` varies alone."""
+    rows = []
+    for parameter, values in sweeps.items():
+        for value in values:
+            defines = dict(base, **{parameter: str(value)})
+            scene = mi.load_file(str(scene_path), **defines)
+            timing = time_render(scene, scene.integrator(), repeats)
+            rows.append(ScalingRow(parameter, value, timing.warm, timing.stats["total"]))
+    return rows
+
+
+# ------------------------------------------------------------------- main
+
+
+@dataclass
+class BenchSettings:
+    scene: Path = DEFAULT_SCENE
+    defines: dict = field(default_factory=dict)
+    repeats: int = 5
+    resolutions: tuple = (256, 512, 1024, 2048)
+    depths: tuple = (2, 4, 6, 10)
+    aa_depths: tuple = (0, 2, 5, 10)
+    memory_resolutions: tuple = (600, 2048)
+    fresh_processes: bool = True
+
+    @classmethod
+    def quick(cls, scene: Path = DEFAULT_SCENE, defines=None) -> "BenchSettings":
+        """Small sizes and few repeats: every figure, in seconds."""
+        return cls(scene, {"res": "96", **(defines or {})}, repeats=2, resolutions=(64, 128),
+                   depths=(2, 6), aa_depths=(0, 3), memory_resolutions=(96,))
+
+
+def run(settings: BenchSettings, report=print) -> dict:
+    """All measurements; ``report`` receives progress lines."""
+    scene_path = Path(settings.scene)
+    scene = mi.load_file(str(scene_path), **settings.defines)
+    integrator = scene.integrator()
+    if not hasattr(integrator, "capture_rays"):
+        raise RuntimeError("mitsuba-whitted bench: the scene's integrator is not 'whitted'.")
+    report("timing warm renders ...")
+    timing = time_render(scene, integrator, settings.repeats)
+
+    report("replaying the same rays through Mitsuba's ray casting ...")
+    integrator.capture_rays = True
+    mi.render(scene, integrator=integrator)
+    integrator.capture_rays = False
+    bound = ray_casting_bound(scene, integrator.last_rays, integrator.emitter_samples,
+                              settings.repeats)
+    integrator.last_rays = None
+
+    results = {
+        "scene": str(scene_path), "defines": settings.defines,
+        "resolution": list(scene.sensors()[0].film().crop_size()),
+        "first_render_in_process_s": timing.first,
+        "warm_render_s": timing.warm,
+        "warm_renders_s": timing.warm_all,
+        "rays": {k: timing.stats[k] for k in
+                 ("camera", "reflection", "refraction", "passthrough", "shadow", "refined", "total")},
+        "rays_per_second": timing.stats["total"] / timing.warm,
+        "aa_samples": timing.stats["aa_samples"],
+        "bound": {"closest_hit_rays": bound.closest_rays, "shadow_rays": bound.shadow_rays,
+                  "ray_intersect_s": bound.intersect_seconds, "ray_test_s": bound.test_seconds,
+                  "seconds": bound.seconds, "ratio": bound.seconds / timing.warm},
+        "peak_rss_mib_this_process": peak_rss_mib(),
+    }
+    if settings.fresh_processes:
+        report("fresh processes (warm and empty kernel cache) ...")
+        results["fresh_process"] = fresh_process_render(scene_path, settings.defines, False)
+        results["fresh_process_empty_cache"] = fresh_process_render(scene_path, settings.defines, True)
+    report("peak memory in child processes ...")
+    results["peak_rss_mib"] = {
+        str(res): child_peak_memory(scene_path, dict(settings.defines, res=str(res)))
+        for res in settings.memory_resolutions}
+    report("scaling ...")
+    base = dict(settings.defines)
+    rows = scaling_table(scene_path, base, {"res": settings.resolutions,
+                                            "max_depth": settings.depths,
+                                            "aa_max_depth": settings.aa_depths},
+                         settings.repeats)
+    results["scaling"] = [{"parameter": r.parameter, "value": r.value, "seconds": r.seconds,
+                           "rays": r.rays, "rays_per_second": r.rays_per_second} for r in rows]
+    return results
+
+
+def format_table(results: dict) -> str:
+    """The benchmark as a plain-text table."""
+    rays = results["rays"]
+    bound = results["bound"]
+    width, height = results["resolution"]
+    lines = [
+        f"scene {results['scene']} at {width}x{height} {results['defines']}",
+        f"  warm render (median)        {results['warm_render_s']:8.3f} s",
+        f"  first render in process     {results['first_render_in_process_s']:8.3f} s",
+    ]
+    if "fresh_process" in results:
+        fresh, empty = results["fresh_process"], results["fresh_process_empty_cache"]
+        lines += [
+            f"  whole render process        {fresh['process_seconds']:8.3f} s  "
+            f"(render {fresh['render_seconds']:.3f} s, kernel cache warm)",
+            f"  same, empty kernel cache    {empty['process_seconds']:8.3f} s  "
+            f"(render {empty['render_seconds']:.3f} s)",
+        ]
+    lines += [
+        "  rays: " + ", ".join(f"{k} {v:,}" for k, v in rays.items()),
+        f"  rays/s                      {results['rays_per_second'] / 1e6:8.2f} M",
+        f"  bound: ray_intersect {bound['closest_hit_rays']:,} rays {bound['ray_intersect_s']:.3f} s"
+        f" + ray_test {bound['shadow_rays']:,} rays {bound['ray_test_s']:.3f} s"
+        f" = {bound['seconds']:.3f} s",
+        f"  bound / actual              {bound['ratio']:8.2f}",
+        "  peak RSS: " + ", ".join(f"{res}^2 {mib:,.0f} MiB"
+                                   for res, mib in results["peak_rss_mib"].items()),
+        "  scaling (warm):",
+    ]
+    for row in results["scaling"]:
+        lines.append(f"    {row['parameter']:>12} = {str(row['value']):>5}  {row['seconds']:8.3f} s"
+                     f"  {row['rays']:>12,} rays  {row['rays_per_second'] / 1e6:6.2f} M rays/s")
+    if "equal_error" in results:
+        eq = results["equal_error"]
+        lines.append(f"  equal-error speed-up over path: {eq['speedup']:.0f}x on {eq['scene']}"
+                     f" (path needs {eq['path_spp']:.0f} spp)")
+    return "\n".join(lines)
