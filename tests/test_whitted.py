@@ -202,3 +202,19 @@ def test_scalar_variant_is_refused_clearly():
     finally:
         mitsuba_whitted.set_variant("llvm_ad_rgb")
     assert isinstance(mi.load_dict(integrator()), mi.SamplingIntegrator)
+
+
+def test_falls_back_when_a_frozen_replay_goes_wrong(monkeypatch):
+    """If Dr.Jit's frozen replay ever returns arrays of a wrong width, the
+    tracer warns and traces anew: same image, no crash."""
+    expected, _ = render(glass_scene(size=16))
+
+    def broken_freeze(function):
+        def replay(*args, **kwargs):
+            local, alpha, shadow, refined, candidates = function(*args, **kwargs)
+            return local, dr.zeros(mi.Float, 3), shadow, refined, candidates
+        return replay
+
+    monkeypatch.setattr(dr, "freeze", broken_freeze)
+    image, _ = render(glass_scene(size=16))
+    np.testing.assert_array_equal(image, expected)

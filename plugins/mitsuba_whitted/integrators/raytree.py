@@ -70,6 +70,16 @@ def _no_garbage_collection():
             gc.enable()
 
 
+def _widths_match(outputs, width: int) -> bool:
+    """Every array in ``outputs`` (nested lists/tuples, ``None`` allowed) is
+    ``width`` wide or a single value."""
+    if outputs is None:
+        return True
+    if isinstance(outputs, (list, tuple)):
+        return all(_widths_match(item, width) for item in outputs)
+    return dr.width(outputs) in (width, 1)
+
+
 #: Codes stored per candidate child; 0 means "no child".
 KIND_CODES = {"reflection": 1, "refraction": 2, "passthrough": 3}
 
@@ -120,6 +130,7 @@ class RayTreeTracer:
         #: replay the very same rays through Mitsuba's own ray casting).
         self.captured = None
         self._generation = dr.freeze(self._generation_kernel)
+        self._frozen = True
         # JIT data the kernel reads besides the scene: a frozen function must
         # receive it as arguments.
         self._captured = refiner.tables() if refiner is not None else ()
@@ -168,9 +179,7 @@ class RayTreeTracer:
             spawn=direct and self.fan_out > 0)
         if not any(work.values()) and generation > 0:
             return dr.zeros(mi.Color3f, len(rays)), None, None, None
-        with _no_garbage_collection():
-            local, alpha, shadow, refined, candidates = self._generation(
-                self.scene, self._captured, *rays.fields(), **work)
+        local, alpha, shadow, refined, candidates = self._run_generation(rays, work)
         local = dr.zeros(mi.Color3f, len(rays)) if local is None else local
         if shadow is not None:
             self.stats.shadow = self.stats.shadow + dr.sum(shadow)
@@ -180,6 +189,26 @@ class RayTreeTracer:
             return local, alpha, None, None
         children, slots = self._compact(candidates, len(rays))
         return local, alpha, children, slots
+
+    def _run_generation(self, rays: RayBatch, work: dict):
+        """The frozen generation kernel, or the plain one if freezing fails.
+
+        A frozen replay must return arrays as wide as its rays; if Dr.Jit
+        ever refuses to record or replays a wrong width, this tracer falls
+        back to tracing every generation anew (slower, same result)."""
+        args = (self.scene, self._captured, *rays.fields())
+        if self._frozen:
+            try:
+                with _no_garbage_collection():
+                    outputs = self._generation(*args, **work)
+                if _widths_match(outputs, len(rays)):
+                    return outputs
+                problem = "a replay returned arrays of the wrong width"
+            except RuntimeError as error:
+                problem = str(error).splitlines()[0]
+            self._frozen = False
+            mi.Log(mi.LogLevel.Warn, f"whitted: tracing without frozen kernels ({problem}).")
+        return self._generation_kernel(*args, **work)
 
     def _generation_kernel(self, scene, captured, o, d, throughput, key,
                            emit: bool, light: bool, spawn: bool):
