@@ -200,6 +200,50 @@ def scaling_table(scene_path: Path, base: dict, sweeps: dict, repeats: int) -> l
     return rows
 
 
+# -------------------------------------------------------------- equal error
+
+
+def fresnel_scene(resolution: int) -> dict:
+    """An equivalence scene: a glass sphere before an emitting checkerboard.
+    Every path of light is a chain of Fresnel reflections and refractions,
+    which Whitted follows exactly and ``path`` samples one branch at a time."""
+    backdrop = {"type": "checkerboard", "color0": {"type": "rgb", "value": [0.1, 0.25, 0.8]},
+                "color1": {"type": "rgb", "value": [1.0, 0.8, 0.3]},
+                "to_uv": mi.ScalarTransform4f().scale([6, 6, 1])}
+    return {
+        "type": "scene",
+        "sensor": {"type": "perspective", "fov": 35,
+                   "to_world": mi.ScalarTransform4f().look_at([0, 0, 5], [0, 0, 0], [0, 1, 0]),
+                   "film": {"type": "hdrfilm", "width": resolution, "height": resolution,
+                            "rfilter": {"type": "box"}}},
+        "glass": {"type": "sphere", "radius": 1.0, "bsdf": {"type": "dielectric", "int_ior": 1.5}},
+        "backdrop": {"type": "rectangle",
+                     "to_world": mi.ScalarTransform4f().translate([0, 0, -3]).scale(4),
+                     "emitter": {"type": "area", "radiance": backdrop}},
+    }
+
+
+def equal_error_speedup(resolution: int, reference_spp: int, largest_spp: int,
+                        repeats: int) -> dict:
+    """Time ``path`` needs to match Whitted's error on ``fresnel_scene``,
+    over Whitted's time (both warm, against one converged reference)."""
+    from .compare import noise_rel_mse, path_spp_ladder, render_reference, run_sweep, speedups
+
+    scene = mi.load_dict(fresnel_scene(resolution))
+    whitted = {"max_depth": 12, "aa": "grid", "aa_samples": 3}
+    reference = render_reference(scene, reference_spp)
+    points = run_sweep(scene, reference, {"whitted": whitted}, path_spp_ladder(largest_spp),
+                       repeats, path_depth=12)
+    speedup = speedups(points)[0]
+    return {"scene": "glass sphere before an emitting checkerboard",
+            "resolution": resolution, "reference_spp": reference.spp,
+            "reference_noise_rel_mse": noise_rel_mse(reference.variance, reference.image),
+            "whitted": whitted, "whitted_rel_mse": speedup.point.rel_mse,
+            "whitted_seconds": speedup.point.seconds, "path_spp": speedup.path.spp,
+            "path_seconds": speedup.path.seconds, "relation": speedup.path.relation,
+            "speedup": speedup.factor}
+
+
 # ------------------------------------------------------------------- main
 
 
@@ -213,12 +257,15 @@ class BenchSettings:
     aa_depths: tuple = (0, 2, 5, 10)
     memory_resolutions: tuple = (600, 2048)
     fresh_processes: bool = True
+    #: Equal-error scene: resolution, reference spp, largest path spp.
+    equal_error: tuple = (128, 8192, 1024)
 
     @classmethod
     def quick(cls, scene: Path = DEFAULT_SCENE, defines=None) -> "BenchSettings":
         """Small sizes and few repeats: every figure, in seconds."""
         return cls(scene, {"res": "96", **(defines or {})}, repeats=2, resolutions=(64, 128),
-                   depths=(2, 6), aa_depths=(0, 3), memory_resolutions=(96,))
+                   depths=(2, 6), aa_depths=(0, 3), memory_resolutions=(96,),
+                   equal_error=(32, 512, 64))
 
 
 def run(settings: BenchSettings, report=print) -> dict:
@@ -270,6 +317,8 @@ def run(settings: BenchSettings, report=print) -> dict:
                          settings.repeats)
     results["scaling"] = [{"parameter": r.parameter, "value": r.value, "seconds": r.seconds,
                            "rays": r.rays, "rays_per_second": r.rays_per_second} for r in rows]
+    report("equal error against path ...")
+    results["equal_error"] = equal_error_speedup(*settings.equal_error, settings.repeats)
     return results
 
 
@@ -305,8 +354,11 @@ def format_table(results: dict) -> str:
     for row in results["scaling"]:
         lines.append(f"    {row['parameter']:>12} = {str(row['value']):>5}  {row['seconds']:8.3f} s"
                      f"  {row['rays']:>12,} rays  {row['rays_per_second'] / 1e6:6.2f} M rays/s")
-    if "equal_error" in results:
-        eq = results["equal_error"]
-        lines.append(f"  equal-error speed-up over path: {eq['speedup']:.0f}x on {eq['scene']}"
-                     f" (path needs {eq['path_spp']:.0f} spp)")
+    eq = results["equal_error"]
+    relation = {"=": "", "<": "< ", ">": "> "}[eq["relation"]]
+    lines.append(f"  equal-error speed-up over path: {relation}{eq['speedup']:.0f}x on {eq['scene']}"
+                 f" at {eq['resolution']}^2 (Whitted relMSE {eq['whitted_rel_mse']:.2e} in "
+                 f"{eq['whitted_seconds']:.3f} s; path needs {relation}{eq['path_spp']:.0f} spp, "
+                 f"{eq['path_seconds']:.3f} s; reference {eq['reference_spp']} spp, its own noise "
+                 f"relMSE {eq['reference_noise_rel_mse']:.1e})")
     return "\n".join(lines)

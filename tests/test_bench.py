@@ -1,0 +1,35 @@
+"""`mitsuba-whitted bench --quick` runs and reports every figure.
+
+No timing is asserted here: speed targets live in the benchmark itself."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def test_bench_quick_writes_every_figure(tmp_path):
+    out = tmp_path / "bench.json"
+    result = subprocess.run([sys.executable, "-m", "mitsuba_whitted.cli", "bench", "--quick",
+                             "--json", str(out)], capture_output=True, text=True, timeout=600,
+                            cwd=ROOT)
+    assert result.returncode == 0, result.stderr
+    figures = json.loads(out.read_text())
+    for key in ("warm_render_s", "first_render_in_process_s", "rays", "rays_per_second",
+                "bound", "fresh_process", "fresh_process_empty_cache", "peak_rss_mib",
+                "scaling", "equal_error"):
+        assert key in figures, key
+    rays = figures["rays"]
+    assert rays["total"] == sum(rays[k] for k in ("camera", "reflection", "refraction",
+                                                    "passthrough", "shadow"))
+    assert figures["bound"]["closest_hit_rays"] == (rays["camera"] + rays["reflection"]
+                                                    + rays["refraction"] + rays["passthrough"])
+    assert 0 < figures["bound"]["ratio"]
+    assert {row["parameter"] for row in figures["scaling"]} == {"res", "max_depth", "aa_max_depth"}
+    assert all(row["seconds"] > 0 for row in figures["scaling"])
+    assert all(mib > 0 for mib in figures["peak_rss_mib"].values())
+    assert figures["equal_error"]["speedup"] > 0
+    table = result.stdout
+    assert "bound / actual" in table and "equal-error speed-up" in table
