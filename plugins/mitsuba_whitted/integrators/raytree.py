@@ -70,6 +70,25 @@ def _no_garbage_collection():
             gc.enable()
 
 
+def _component_table(scene: mi.Scene, kind: str, component) -> "mi.Bool":
+    """Per BSDF registry id: whether that BSDF has this delta component
+    (``kind == "null"``: whether it lets light pass through unscattered)."""
+    bsdfs = {id(shape.bsdf()): shape.bsdf() for shape in scene.shapes() if shape.bsdf()}
+    entries = {}
+    for bsdf in bsdfs.values():
+        index = int(dr.reinterpret_array(mi.UInt32, mi.BSDFPtr(bsdf))[0])
+        if kind == "null":
+            entries[index] = mi.has_flag(bsdf.flags(), mi.BSDFFlags.Null)
+        else:
+            entries[index] = (component < bsdf.component_count()
+                              and mi.has_flag(bsdf.flags(component), mi.BSDFFlags.Delta)
+                              and not mi.has_flag(bsdf.flags(component), mi.BSDFFlags.Null))
+    table = [False] * (max(entries, default=0) + 1)
+    for index, value in entries.items():
+        table[index] = bool(value)
+    return mi.Bool(table)
+
+
 def _widths_match(outputs, width: int) -> bool:
     """Every array in ``outputs`` (nested lists/tuples, ``None`` allowed) is
     ``width`` wide or a single value."""
@@ -133,7 +152,11 @@ class RayTreeTracer:
         self._frozen = True
         # JIT data the kernel reads besides the scene: a frozen function must
         # receive it as arguments.
-        self._captured = refiner.tables() if refiner is not None else ()
+        self._component_tables = [_component_table(scene, kind, component)
+                                  for kind, component in self.components]
+        # Everything the frozen kernel reads besides the scene and its rays.
+        self._kernel_inputs = ((refiner.tables() if refiner is not None else ()),
+                          tuple(self._component_tables))
 
     @property
     def fan_out(self) -> int:
@@ -196,7 +219,7 @@ class RayTreeTracer:
         A frozen replay must return arrays as wide as its rays; if Dr.Jit
         ever refuses to record or replays a wrong width, this tracer falls
         back to tracing every generation anew (slower, same result)."""
-        args = (self.scene, self._captured, *rays.fields())
+        args = (self.scene, self._kernel_inputs, *rays.fields())
         if self._frozen:
             try:
                 with _no_garbage_collection():
@@ -210,7 +233,7 @@ class RayTreeTracer:
             mi.Log(mi.LogLevel.Warn, f"whitted: tracing without frozen kernels ({problem}).")
         return self._generation_kernel(*args, **work)
 
-    def _generation_kernel(self, scene, captured, o, d, throughput, key,
+    def _generation_kernel(self, scene, inputs, o, d, throughput, key,
                            emit: bool, light: bool, spawn: bool):
         """Everything one generation computes, as one traced function of its
         rays: radiance, alpha, shadow rays and refinements per lane, and one
@@ -238,9 +261,12 @@ class RayTreeTracer:
             radiance, shadow = self.lighting.radiance(si, bsdf, key, hit)
             local = radiance if local is None else local + radiance
         if spawn:
+            bsdf_id = dr.reinterpret_array(mi.UInt32, bsdf)
             for index, (kind, component) in enumerate(self.components):
+                # Only lanes whose BSDF has this component call into it.
+                has = dr.gather(mi.Bool, inputs[1][index], bsdf_id, hit)
                 candidates.append(self._candidate(index, kind, component, si, bsdf, ray,
-                                                  throughput, key, hit))
+                                                  throughput, key, hit & has))
         if local is not None:
             local = local * throughput
         return local, mi.Float(hit), shadow, refined, candidates
