@@ -1,6 +1,7 @@
 """``mitsuba-whitted``: render scenes and report on the installation.
 
     mitsuba-whitted render SCENE.xml -o OUT.png [--variant V] [-D name=value ...]
+    mitsuba-whitted compare SCENE.xml [--out DIR] [--reference-spp N] [--quick] [-D ...]
     mitsuba-whitted info
 """
 
@@ -121,6 +122,25 @@ def command_info(args) -> int:
     return 0
 
 
+def command_compare(args) -> int:
+    from pathlib import Path
+
+    import mitsuba_whitted
+    from .compare import CompareOptions, compare_scene
+
+    options = CompareOptions.make(args.quick, args.reference_spp)
+    mitsuba_whitted.set_variant(args.variant)
+    out = Path(args.out or f"compare-{Path(args.scene).stem}")
+    result = compare_scene(args.scene, out, options, _parse_defines(args.define),
+                           progress=Progress())
+    crossing = result.results["crossing"]
+    print(f"{result.report}: reference {result.reference.spp} spp"
+          f"{' (cached)' if result.reference.cached else ''}; path overtakes the most "
+          f"accurate Whitted setting ({crossing['label']}) at "
+          f"{crossing['relation'].replace('=', '')}{crossing['path_seconds']:.3g} s")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     from . import DEFAULT_VARIANT
 
@@ -137,6 +157,20 @@ def build_parser() -> argparse.ArgumentParser:
                         help="set a $NAME default of the scene")
     render.add_argument("--variant", default=DEFAULT_VARIANT)
     render.set_defaults(run=command_render)
+
+    compare = commands.add_parser(
+        "compare", help="whitted against Mitsuba's path tracer: images, errors, times, report")
+    compare.add_argument("scene", help="Mitsuba scene file (XML)")
+    compare.add_argument("--out", help="report directory (default compare-SCENE); the path "
+                         "reference is cached in OUT/cache")
+    compare.add_argument("--reference-spp", type=int,
+                         help="samples per pixel of the path reference (default 1024, quick 64)")
+    compare.add_argument("--quick", action="store_true",
+                         help="fewer settings and a cheaper reference, for a first look")
+    compare.add_argument("-D", "--define", action="append", default=[], metavar="NAME=VALUE",
+                         help="set a $NAME default of the scene")
+    compare.add_argument("--variant", default=DEFAULT_VARIANT)
+    compare.set_defaults(run=command_compare)
 
     info = commands.add_parser("info", help="variant, libLLVM and plugins")
     info.add_argument("--variant", default=DEFAULT_VARIANT)

@@ -26,7 +26,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from .camera import camera_rays, pixel_centres
+from ..camera import camera_rays, pixel_centres
 
 
 def t_quantile(p: float, dof):
@@ -57,6 +57,13 @@ class EquivalenceResult:
     @property
     def passed(self) -> bool:
         return self.rejected == 0
+
+    @property
+    def noise_multiple(self) -> float:
+        """Mean of t squared: the squared difference of the two means as a
+        multiple of its variance (their own noise, plus the float32 floor),
+        about 1 when the difference is noise and nothing else."""
+        return float(np.mean(self.t ** 2))
 
     def summary(self) -> str:
         verdict = "agree" if self.passed else "DIFFER"
@@ -139,11 +146,3 @@ def pixel_centre_equivalence(scene: mi.Scene, whitted, path, batches: int = 16,
     return equivalence_test(whitted_batches(scene, whitted, ray, whitted_seeds),
                             path_batches(scene, path, ray, batches, spp, seed), alpha)
 
-
-def rel_mse(image: np.ndarray, reference: np.ndarray, eps: float = 1e-2) -> float:
-    """Relative mean squared error, (x - y)^2 / (y^2 + eps), averaged."""
-    return float(np.mean((image - reference) ** 2 / (reference ** 2 + eps)))
-
-
-def rmse(image: np.ndarray, reference: np.ndarray) -> float:
-    return float(math.sqrt(np.mean((image - reference) ** 2)))

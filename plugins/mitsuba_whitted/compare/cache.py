@@ -1,0 +1,93 @@
+"""Reference renders cached on disk under a content hash.
+
+The key covers everything the reference depends on: the scene file's bytes,
+the bytes of every file it names (textures, meshes, includes), the ``-D``
+defines, the render settings, and the Mitsuba version and variant. Editing
+any of them gives a new key; nothing else does. Entries are ``.npz`` files
+named by the key, written atomically so an interrupted run leaves no half
+entry behind.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+from pathlib import Path
+
+import numpy as np
+
+#: Attributes of a scene file that name other files it depends on.
+_FILE_REFERENCE = re.compile(
+    r'<string\s+name="filename"\s+value="([^"$]+)"|<include\s+filename="([^"$]+)"')
+
+
+def referenced_files(scene_path: Path) -> list[Path]:
+    """Files a scene XML names by a fixed filename (relative to the scene)."""
+    text = scene_path.read_text(errors="replace")
+    found = []
+    for match in _FILE_REFERENCE.finditer(text):
+        name = match.group(1) or match.group(2)
+        candidate = (scene_path.parent / name).resolve()
+        if candidate.is_file():
+            found.append(candidate)
+    return sorted(set(found))
+
+
+def scene_digest(scene_path: str | Path, defines: dict | None = None) -> str:
+    """SHA-256 of a scene file, the files it names and its defines."""
+    scene_path = Path(scene_path)
+    digest = hashlib.sha256(scene_path.read_bytes())
+    for path in referenced_files(scene_path):
+        digest.update(path.name.encode())
+        digest.update(path.read_bytes())
+    digest.update(json.dumps(defines or {}, sort_keys=True).encode())
+    return digest.hexdigest()
+
+
+def cache_key(**parts) -> str:
+    """SHA-256 of the parts (JSON with sorted keys; other objects by
+    ``str``) and of the Mitsuba version and variant."""
+    import mitsuba as mi
+
+    parts = dict(parts, mitsuba=mi.__version__, variant=mi.variant())
+    text = json.dumps(parts, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+class ReferenceCache:
+    """A directory of cached arrays; ``hits`` and ``misses`` count lookups."""
+
+    def __init__(self, directory: str | Path):
+        self.directory = Path(directory)
+        self.hits = 0
+        self.misses = 0
+
+    def path(self, key: str) -> Path:
+        return self.directory / f"{key}.npz"
+
+    def load(self, key: str) -> dict | None:
+        path = self.path(key)
+        if not path.is_file():
+            return None
+        with np.load(path) as data:
+            return {name: data[name] for name in data.files}
+
+    def store(self, key: str, arrays: dict) -> None:
+        self.directory.mkdir(parents=True, exist_ok=True)
+        partial = self.directory / f"{key}.partial.npz"
+        np.savez(partial, **arrays)
+        os.replace(partial, self.path(key))
+
+    def get_or_compute(self, key: str, compute) -> dict:
+        """The entry for ``key``, computed by ``compute()`` (a dict of
+        arrays) and stored when absent."""
+        arrays = self.load(key)
+        if arrays is not None:
+            self.hits += 1
+            return arrays
+        self.misses += 1
+        arrays = compute()
+        self.store(key, arrays)
+        return arrays

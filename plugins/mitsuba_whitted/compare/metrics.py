@@ -1,0 +1,74 @@
+"""Image error metrics and energy accounting, on linear RGB numpy images.
+
+``rel_mse`` is the relative MSE of the rendering literature: the squared
+error over the squared reference plus ``eps``, so dark pixels do not
+dominate. FLIP (Andersson et al. 2020, the ``flip-evaluator`` package) is a
+perceptual difference in [0, 1]; its HDR variant takes linear images.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+#: Rec. 709 luminance weights, as Mitsuba's ``luminance()``.
+LUMINANCE = np.array([0.212671, 0.715160, 0.072169])
+
+
+def rel_mse(image: np.ndarray, reference: np.ndarray, eps: float = 1e-2) -> float:
+    """Relative mean squared error, (x - y)^2 / (y^2 + eps), averaged."""
+    return float(np.mean(rel_squared_error(image, reference, eps)))
+
+
+def rel_squared_error(image: np.ndarray, reference: np.ndarray, eps: float = 1e-2) -> np.ndarray:
+    """Per-pixel relative squared error, averaged over the colour channels."""
+    error = (image[..., :3] - reference[..., :3]) ** 2 / (reference[..., :3] ** 2 + eps)
+    return error.mean(axis=-1)
+
+
+def rmse(image: np.ndarray, reference: np.ndarray) -> float:
+    return float(math.sqrt(np.mean((image - reference) ** 2)))
+
+
+def noise_rel_mse(variance: np.ndarray, reference: np.ndarray, eps: float = 1e-2) -> float:
+    """Expected relMSE of an unbiased estimate with per-pixel ``variance``
+    against its own expectation: the relMSE its noise alone causes."""
+    return float(np.mean(variance[..., :3] / (reference[..., :3] ** 2 + eps)))
+
+
+def luminance(image: np.ndarray) -> np.ndarray:
+    return image[..., :3] @ LUMINANCE
+
+
+def missing_light(image: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """Per-pixel luminance the reference has and ``image`` lacks (the
+    positive part of reference minus image)."""
+    return np.maximum(luminance(reference) - luminance(image), 0.0)
+
+
+def missing_energy_share(image: np.ndarray, reference: np.ndarray) -> float:
+    """Share of the reference's total luminance that ``image`` lacks."""
+    return float(missing_light(image, reference).sum() / luminance(reference).sum())
+
+
+def flip_available() -> bool:
+    try:
+        import flip_evaluator  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def flip_error(image: np.ndarray, reference: np.ndarray):
+    """(mean, per-pixel map) of HDR-FLIP, or (nan, None) when the
+    ``flip-evaluator`` package is not installed."""
+    if not flip_available():
+        return math.nan, None
+    import flip_evaluator
+
+    error_map, mean, _ = flip_evaluator.evaluate(
+        np.ascontiguousarray(np.maximum(reference[..., :3], 0), dtype=np.float32),
+        np.ascontiguousarray(np.maximum(image[..., :3], 0), dtype=np.float32),
+        "HDR", applyMagma=False)
+    return float(mean), np.asarray(error_map)[..., 0]

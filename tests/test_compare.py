@@ -1,0 +1,242 @@
+"""The comparison library and ``mitsuba-whitted compare``.
+
+Oracles: closed forms for the metrics and the log-log interpolation,
+recomputation from the images the report wrote, Mitsuba's path tracer for
+the equivalence verdicts, and the files on disk for the cache.
+"""
+
+import json
+import math
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import mitsuba as mi
+import numpy as np
+import pytest
+
+from mitsuba_whitted.compare import (ReferenceCache, SweepPoint, cache_key, cached_reference,
+                                     equal_error, flip_error, luminance, missing_energy_share,
+                                     noise_rel_mse, rel_mse, rmse, scene_digest)
+from mitsuba_whitted.compare.report import number
+from mitsuba_whitted.imageio import read_image
+
+from conftest import assert_finite
+
+ROOT = Path(__file__).resolve().parent.parent
+SCENE = ROOT / "scenes" / "cosc363.xml"
+RNG = np.random.default_rng(363)
+
+
+def cli(*args):
+    return subprocess.run([sys.executable, "-m", "mitsuba_whitted.cli", *args],
+                          capture_output=True, text=True, timeout=300, cwd=ROOT)
+
+
+# ---------------------------------------------------------------- metrics
+
+def test_metrics_match_closed_forms():
+    c, d, eps = 0.4, 0.05, 1e-2
+    reference = np.full((8, 8, 3), c)
+    image = reference + d
+    assert rel_mse(image, reference, eps) == pytest.approx(d ** 2 / (c ** 2 + eps), rel=1e-12)
+    assert rmse(image, reference) == pytest.approx(d, rel=1e-12)
+    # Rec. 709 weights sum to 1: grey keeps its value.
+    assert luminance(reference) == pytest.approx(np.full((8, 8), c), rel=1e-5)
+    assert missing_energy_share(0.75 * reference, reference) == pytest.approx(0.25, rel=1e-12)
+    # Light an image adds is not light it leaves out.
+    assert missing_energy_share(1.5 * reference, reference) == 0.0
+    variance = np.full_like(reference, 1e-4)
+    assert noise_rel_mse(variance, reference, eps) == pytest.approx(1e-4 / (c ** 2 + eps))
+
+
+def test_rel_mse_against_an_explicit_sum():
+    reference, image = RNG.random((5, 7, 3)), RNG.random((5, 7, 3))
+    explicit = sum((image[i, j, k] - reference[i, j, k]) ** 2 / (reference[i, j, k] ** 2 + 0.01)
+                   for i in range(5) for j in range(7) for k in range(3)) / (5 * 7 * 3)
+    assert rel_mse(image, reference) == pytest.approx(explicit, rel=1e-12)
+
+
+def test_flip_is_zero_for_equal_images_and_grows_with_the_error():
+    reference = RNG.random((32, 32, 3)).astype(np.float32)
+    assert flip_error(reference, reference)[0] == 0.0
+    small, large = (flip_error(reference * factor, reference)[0] for factor in (1.1, 2.0))
+    assert 0 < small < large <= 1
+
+
+# ------------------------------------------------------ equal-error time
+
+def _path_curve():
+    """A path tracer whose relMSE is exactly 1/spp at 10 ms per spp."""
+    return [SweepPoint(f"{n}", "path", {}, n, 0.01 * n, 0.01 * n, None, rel_mse=1.0 / n)
+            for n in (1, 2, 4, 8, 16)]
+
+
+def test_equal_error_interpolates_a_power_law_exactly():
+    # On log-log axes a power law is a line, so interpolation is exact.
+    for spp in (3.0, 5.657, 8.0, 12.5):
+        found = equal_error(_path_curve(), 1.0 / spp)
+        assert found.relation == "="
+        assert found.spp == pytest.approx(spp, rel=1e-9)
+        assert found.seconds == pytest.approx(0.01 * spp, rel=1e-9)
+
+
+def test_equal_error_outside_the_range_is_a_bound():
+    assert equal_error(_path_curve(), 2.0).relation == "<"
+    beyond = equal_error(_path_curve(), 1e-3)
+    assert beyond.relation == ">" and beyond.spp == 16
+
+
+# ------------------------------------------------------------------ cache
+
+def _write_scene(directory: Path, radius: float) -> Path:
+    (directory / "tex.png").write_bytes(b"texture v1")
+    scene = directory / "scene.xml"
+    scene.write_text(f"""<scene version="3.0.0">
+    <default name="res" value="16"/>
+    <sensor type="perspective">
+        <film type="hdrfilm"><integer name="width" value="$res"/>
+            <integer name="height" value="$res"/></film>
+    </sensor>
+    <emitter type="constant"/>
+    <shape type="sphere"><float name="radius" value="{radius}"/>
+        <transform name="to_world"><translate z="5"/></transform>
+        <bsdf type="diffuse"><texture type="bitmap" name="reflectance">
+            <string name="filename" value="tex.png"/></texture></bsdf>
+    </shape>
+</scene>""")
+    return scene
+
+
+def test_scene_digest_follows_the_content(tmp_path):
+    scene = _write_scene(tmp_path, 1.0)
+    base = scene_digest(scene, {"res": "16"})
+    (tmp_path / "unrelated.txt").write_text("not named by the scene")
+    scene.touch()
+    assert scene_digest(scene, {"res": "16"}) == base
+    assert scene_digest(scene, {"res": "32"}) != base
+    (tmp_path / "tex.png").write_bytes(b"texture v2")
+    assert scene_digest(scene, {"res": "16"}) != base
+
+
+def test_scene_digest_changes_with_the_scene_text(tmp_path):
+    first = scene_digest(_write_scene(tmp_path, 1.0))
+    second = scene_digest(_write_scene(tmp_path, 1.5))
+    assert first != second
+    assert scene_digest(_write_scene(tmp_path, 1.0)) == first
+
+
+def test_cache_key_changes_with_the_settings_only():
+    key = cache_key(scene="abc", spp=64, integrator={"type": "path", "max_depth": 32})
+    assert key == cache_key(integrator={"max_depth": 32, "type": "path"}, spp=64, scene="abc")
+    assert key != cache_key(scene="abc", spp=128, integrator={"type": "path", "max_depth": 32})
+    assert key != cache_key(scene="abd", spp=64, integrator={"type": "path", "max_depth": 32})
+    assert key != cache_key(scene="abc", spp=64, integrator={"type": "path", "max_depth": 8})
+
+
+def test_second_reference_comes_from_the_cache(tmp_path):
+    scene = mi.load_dict({
+        "type": "scene", "emitter": {"type": "constant"},
+        "sphere": {"type": "sphere", "center": [0, 0, 4], "bsdf": {"type": "diffuse"}},
+        "sensor": {"type": "perspective", "film": {"type": "hdrfilm", "width": 24,
+                                                   "height": 24}}})
+    cache = ReferenceCache(tmp_path)
+    started = time.perf_counter()
+    first = cached_reference(cache, "key", scene, spp=512)
+    rendered = time.perf_counter() - started
+    started = time.perf_counter()
+    second = cached_reference(cache, "key", scene, spp=512)
+    loaded = time.perf_counter() - started
+    assert (cache.misses, cache.hits) == (1, 1)
+    assert not first.cached and second.cached
+    np.testing.assert_array_equal(first.image, second.image)
+    np.testing.assert_array_equal(first.variance, second.variance)
+    assert_finite(first.image)
+    assert loaded < rendered / 5
+    # The spread of the passes is a real noise estimate: the sky seen past
+    # the sphere is noiseless, the diffuse sphere under it is not.
+    assert first.variance[0, 0].max() == 0 and first.variance[12, 12].min() > 0
+
+
+# -------------------------------------------------------- compare --quick
+
+def test_compare_quick_writes_a_consistent_report(tmp_path):
+    started = time.perf_counter()
+    result = cli("compare", str(SCENE), "-D", "res=64", "--quick", "--out", str(tmp_path))
+    seconds = time.perf_counter() - started
+    assert result.returncode == 0, result.stderr
+    assert seconds < 60
+    report = (tmp_path / "report.md").read_text()
+    results = json.loads((tmp_path / "results.json").read_text())
+    images = tmp_path / "images"
+    for link in re.findall(r"\]\((images/[^)]+)\)", report):
+        assert (tmp_path / link).is_file(), link
+    assert (images / "speed_vs_error.png").is_file()
+
+    reference = read_image(images / "reference.exr")
+    assert reference.shape == (64, 64, 3)
+    assert_finite(reference)
+    whitted = [p for p in results["points"] if p["kind"] == "whitted"]
+    path = sorted((p for p in results["points"] if p["kind"] == "path"), key=lambda p: p["spp"])
+    assert {p["label"] for p in whitted} == {"aa none", "aa grid 2x2", "aa adaptive 0.25"}
+    assert [p["spp"] for p in path] == [1, 2, 4, 8, 16]
+    for point in whitted:
+        image = read_image(images / f"{point['image']}.exr")
+        assert_finite(image)
+        # The images are stored as float32, the report computed in float64.
+        assert rel_mse(image, reference) == pytest.approx(point["rel_mse"], rel=1e-5)
+        row = next(line for line in report.splitlines() if line.startswith(f"| {point['label']} |"))
+        assert f"| {number(point['rel_mse'])} |" in row
+        gain = results["speedups"][point["label"]]
+        assert gain["factor"] == pytest.approx(gain["path_seconds"] / point["seconds"])
+    # Path error falls with the sample count (about as 1/spp).
+    assert path[-1]["rel_mse"] < path[0]["rel_mse"] / 4
+    share = results["missing_energy_share"]
+    assert 0 < share < 1 and f"{100 * share:.1f}%" in report
+
+
+# ------------------------------------------------------------ equivalence
+
+def test_wrong_fresnel_weight_fails_the_equivalence_test_and_the_right_one_passes(tmp_path):
+    from validation.run import run_equivalence
+    from validation.scenes import equivalence_cases
+
+    cases = {case.name: case for case in equivalence_cases()}
+    cache = ReferenceCache(tmp_path)
+    right = run_equivalence(cases["Fresnel glass"], cache)
+    wrong = run_equivalence(cases["broken: glass reflecting 50%"], cache)
+    assert right.passed, right.summary()
+    assert not wrong.passed, wrong.summary()
+    assert cache.hits == 1  # both compare against the same path batches
+    # Under equivalence t^2 averages about 1 (below 1 where path is noiseless).
+    assert right.noise_multiple < 1.5 < 20 < wrong.noise_multiple
+
+
+# -------------------------------------------------------------- bad input
+
+def _scene_file(tmp_path, body):
+    path = tmp_path / "bad.xml"
+    path.write_text(f'<scene version="3.0.0">{body}</scene>')
+    return str(path)
+
+
+@pytest.mark.parametrize("body, message", [
+    (None, "scene file 'missing.xml' does not exist"),
+    ('<shape type="sphere"/>', "has no sensor, so there is no image to compare"),
+    ('<integrator type="nosuch"/><sensor type="perspective"/>', 'Plugin "nosuch" not found'),
+])
+def test_bad_input_to_compare_is_one_sentence(tmp_path, body, message):
+    scene = "missing.xml" if body is None else _scene_file(tmp_path, body)
+    result = cli("compare", scene, "--quick", "--out", str(tmp_path / "out"))
+    assert result.returncode == 2
+    assert message in result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1, result.stderr
+
+
+def test_too_few_reference_samples_is_one_sentence(tmp_path):
+    result = cli("compare", str(SCENE), "--reference-spp", "4", "--out", str(tmp_path))
+    assert result.returncode == 2
+    assert "--reference-spp must be at least 16 (got 4)" in result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1
