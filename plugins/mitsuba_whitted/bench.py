@@ -226,22 +226,27 @@ def fresnel_scene(resolution: int) -> dict:
 def equal_error_speedup(resolution: int, reference_spp: int, largest_spp: int,
                         repeats: int) -> dict:
     """Time ``path`` needs to match Whitted's error on ``fresnel_scene``,
-    over Whitted's time (both warm, against one converged reference)."""
+    over Whitted's time (both warm, against one converged reference), for
+    Whitted with 1, 2, 4 and 8 samples per pixel side: its only error is
+    aliasing, which finer grids shrink, while path's is noise. The
+    headline is the best of these settings."""
     from .compare import noise_rel_mse, path_spp_ladder, render_reference, run_sweep, speedups
 
     scene = mi.load_dict(fresnel_scene(resolution))
-    whitted = {"max_depth": 12, "aa": "grid", "aa_samples": 3}
+    grids = {f"whitted grid {n}x{n}": {"max_depth": 12, "aa": "grid", "aa_samples": n}
+             for n in (1, 2, 4, 8)}
     reference = render_reference(scene, reference_spp)
-    points = run_sweep(scene, reference, {"whitted": whitted}, path_spp_ladder(largest_spp),
-                       repeats, path_depth=12)
-    speedup = speedups(points)[0]
+    points = run_sweep(scene, reference, grids, path_spp_ladder(largest_spp), repeats,
+                       path_depth=12)
+    rows = [{"whitted": s.point.label, "whitted_rel_mse": s.point.rel_mse,
+             "whitted_seconds": s.point.seconds, "path_spp": s.path.spp,
+             "path_seconds": s.path.seconds, "relation": s.path.relation,
+             "speedup": s.factor} for s in speedups(points)]
+    best = max(rows, key=lambda row: row["speedup"])
     return {"scene": "glass sphere before an emitting checkerboard",
             "resolution": resolution, "reference_spp": reference.spp,
             "reference_noise_rel_mse": noise_rel_mse(reference.variance, reference.image),
-            "whitted": whitted, "whitted_rel_mse": speedup.point.rel_mse,
-            "whitted_seconds": speedup.point.seconds, "path_spp": speedup.path.spp,
-            "path_seconds": speedup.path.seconds, "relation": speedup.path.relation,
-            "speedup": speedup.factor}
+            "settings": rows, **best}
 
 
 # ------------------------------------------------------------------- main
@@ -258,7 +263,7 @@ class BenchSettings:
     memory_resolutions: tuple = (600, 2048)
     fresh_processes: bool = True
     #: Equal-error scene: resolution, reference spp, largest path spp.
-    equal_error: tuple = (128, 8192, 1024)
+    equal_error: tuple = (128, 16384, 4096)
 
     @classmethod
     def quick(cls, scene: Path = DEFAULT_SCENE, defines=None) -> "BenchSettings":
@@ -357,7 +362,7 @@ def format_table(results: dict) -> str:
     eq = results["equal_error"]
     relation = {"=": "", "<": "< ", ">": "> "}[eq["relation"]]
     lines.append(f"  equal-error speed-up over path: {relation}{eq['speedup']:.0f}x on {eq['scene']}"
-                 f" at {eq['resolution']}^2 (Whitted relMSE {eq['whitted_rel_mse']:.2e} in "
+                 f" at {eq['resolution']}^2, {eq['whitted']} (relMSE {eq['whitted_rel_mse']:.2e} in "
                  f"{eq['whitted_seconds']:.3f} s; path needs {relation}{eq['path_spp']:.0f} spp, "
                  f"{eq['path_seconds']:.3f} s; reference {eq['reference_spp']} spp, its own noise "
                  f"relMSE {eq['reference_noise_rel_mse']:.1e})")

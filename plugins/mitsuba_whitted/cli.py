@@ -141,6 +141,27 @@ def command_compare(args) -> int:
     return 0
 
 
+def command_bench(args) -> int:
+    import json
+    from pathlib import Path
+
+    import mitsuba_whitted
+    from . import bench
+
+    mitsuba_whitted.set_variant(args.variant)
+    scene = Path(args.scene) if args.scene else bench.DEFAULT_SCENE
+    if not scene.is_file():
+        raise UsageError(f"mitsuba-whitted: scene file '{scene}' does not exist.")
+    defines = _parse_defines(args.define)
+    settings = (bench.BenchSettings.quick(scene, defines) if args.quick
+                else bench.BenchSettings(scene, defines))
+    results = bench.run(settings, report=lambda line: print(line, file=sys.stderr))
+    print(bench.format_table(results))
+    if args.json:
+        Path(args.json).write_text(json.dumps(results, indent=2))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     from . import DEFAULT_VARIANT
 
@@ -171,6 +192,16 @@ def build_parser() -> argparse.ArgumentParser:
                          help="set a $NAME default of the scene")
     compare.add_argument("--variant", default=DEFAULT_VARIANT)
     compare.set_defaults(run=command_compare)
+
+    bench_ = commands.add_parser(
+        "bench", help="speed, ray-casting bound, memory and scaling, measured in one run")
+    bench_.add_argument("scene", nargs="?", help="scene (default: the report's scene)")
+    bench_.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
+    bench_.add_argument("--quick", action="store_true", help="small sizes, few repeats")
+    bench_.add_argument("-D", "--define", action="append", default=[], metavar="NAME=VALUE",
+                        help="set a $NAME default of the scene")
+    bench_.add_argument("--variant", default=DEFAULT_VARIANT)
+    bench_.set_defaults(run=command_bench)
 
     info = commands.add_parser("info", help="variant, libLLVM and plugins")
     info.add_argument("--variant", default=DEFAULT_VARIANT)
