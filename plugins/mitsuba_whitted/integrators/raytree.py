@@ -199,7 +199,9 @@ class RayTreeTracer:
             emit=(generation + 1 <= depth and self.needs.hittable_emitters
                   and not (generation == 0 and self.settings.hide_emitters)),
             light=direct and self.needs.smooth_surfaces,
-            spawn=direct and self.fan_out > 0)
+            # Children are worth tracing if they can see emission or shade.
+            spawn=direct and self.fan_out > 0 and (self.needs.hittable_emitters
+                                                  or generation + 3 <= depth))
         if not any(work.values()) and generation > 0:
             return dr.zeros(mi.Color3f, len(rays)), None, None, None
         local, alpha, shadow, refined, candidates = self._run_generation(rays, work)
