@@ -377,7 +377,7 @@ XML_CASES = {
 
 
 @pytest.mark.parametrize("name", sorted(XML_CASES))
-def test_diffuse_and_plastic_use_the_texture_from_xml_and_dict(name):
+def test_diffuse_plastic_and_phong_use_the_texture_from_xml_and_dict(name):
     """Oracle: the BSDF's own albedo lookup must return the texture's value
     at the same interaction, and ``diffuse`` must evaluate to albedo·cosθ/π."""
     rng = np.random.default_rng(RNG_SEED)
@@ -386,7 +386,8 @@ def test_diffuse_and_plastic_use_the_texture_from_xml_and_dict(name):
     si.sh_frame = mi.Frame3f(si.sh_frame.n)
     si.wi = mi.Vector3f(0, 0, 1)
     wo = mi.Vector3f(0.6, 0, 0.8)
-    for bsdf_type, slot in (("diffuse", "reflectance"), ("plastic", "diffuse_reflectance")):
+    for bsdf_type, slot in (("diffuse", "reflectance"), ("plastic", "diffuse_reflectance"),
+                            ("phong", "diffuse_reflectance")):
         from_xml = mi.load_string(f'<bsdf version="3.0.0" type="{bsdf_type}">'
                                   + XML_CASES[name].format(slot=slot) + '</bsdf>')
         from_dict = mi.load_dict({"type": bsdf_type, slot: texture_cases()[name]})
@@ -416,6 +417,8 @@ def textured_sphere_scene(texture, integrator):
                    "film": {"type": "hdrfilm", "width": 32, "height": 32}},
         "light": {"type": "point", "position": [2, 3, 3], "intensity": {"type": "rgb", "value": 30}},
         "ball": {"type": "sphere", "radius": 1, "bsdf": {"type": "diffuse", "reflectance": texture}},
+        "second": {"type": "sphere", "radius": 0.4, "center": [1.4, -0.6, 0.5],
+                   "bsdf": {"type": "phong", "diffuse_reflectance": texture}},
         "ground": {"type": "rectangle", "to_world": ground,
                    "bsdf": {"type": "plastic", "diffuse_reflectance": texture}},
     })
