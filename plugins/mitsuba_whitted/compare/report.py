@@ -105,8 +105,7 @@ class MarkdownReport:
         shown = axes.imshow(values, cmap=cmap, vmin=0, vmax=vmax, interpolation="nearest")
         axes.set_axis_off()
         figure.colorbar(shown, ax=axes, fraction=0.046, pad=0.04).set_label(label, fontsize=8)
-        figure.tight_layout()
-        figure.savefig(path)
+        figure.savefig(path, bbox_inches="tight", pad_inches=0.04)
         plt.close(figure)
         return link
 
