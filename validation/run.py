@@ -24,6 +24,7 @@ from mitsuba_whitted.compare import (CompareOptions, ReferenceCache, cache_key, 
                                      timed_render,                                      whitted_batches)
 from mitsuba_whitted.compare.report import MarkdownReport, number
 from mitsuba_whitted.compare.scene_report import machine
+from mitsuba_whitted.compare.sweep import speedup_text
 from validation.scenes import REPORT_SCENE, SPEED, EquivalenceCase, equivalence_cases
 from validation.stability import run_stability, stability_markdown
 
@@ -203,7 +204,7 @@ def _speed_row(result, out: Path) -> list:
 
     def gain(label):
         g = results["speedups"][label]
-        return f"{({'=': '', '<': '< ', '>': '> '}[g['relation']])}{g['factor']:.3g}x"
+        return speedup_text(g["factor"], g["relation"])
 
     overtakes = {"=": f"{number(cross['path_seconds'])} s ({number(cross['path_spp'], 2)} spp)",
                  "<": f"< {number(cross['path_seconds'])} s (1 spp)",

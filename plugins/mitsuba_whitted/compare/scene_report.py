@@ -20,7 +20,7 @@ from .metrics import missing_energy_share, missing_light, noise_rel_mse, rel_squ
 from .reference import Reference, cached_reference, path_settings
 from .report import MarkdownReport, number
 from .sweep import (SweepPoint, crossing, path_spp_ladder, run_sweep, scene_whitted_settings,
-                    speedups, whitted_variants)
+                    speedup_text, speedups, whitted_variants)
 
 REFERENCE_PASSES = 16
 
@@ -182,8 +182,7 @@ def _error_table(report, points, results):
         gain = results["speedups"].get(p.label)
         equal = (f"{number(gain['path_seconds'])} s ({number(gain['path_spp'], 2)} spp)"
                  if gain else "")
-        factor = ((({"=": "", "<": "< ", ">": "> "}[gain["relation"]])
-                   + f"{gain['factor']:.3g}x") if gain else "")
+        factor = speedup_text(gain["factor"], gain["relation"]) if gain else ""
         rows.append([p.label, number(p.first_seconds), number(p.seconds), number(p.rel_mse),
                      number(p.rmse), number(p.flip), equal, factor])
     report.table(["setting", "first render (s)", "warm render (s)", "relMSE", "RMSE", "FLIP",

@@ -171,10 +171,10 @@ class Speedup:
         """Path's time at Whitted's error over Whitted's time."""
         return self.path.seconds / self.point.seconds
 
-    def text(self) -> str:
-        """The factor, with ``<``/``>`` when it is a bound."""
-        relation = {"=": "", "<": "< ", ">": "> "}[self.path.relation]
-        return f"{relation}{self.factor:.3g}x"
+
+def speedup_text(factor: float, relation: str) -> str:
+    """A speed-up factor, with ``<``/``>`` when it is a bound."""
+    return f"{ {'=': '', '<': '< ', '>': '> '}[relation]}{factor:.3g}x"
 
 
 def speedups(points: list[SweepPoint]) -> list[Speedup]:
