@@ -13,10 +13,6 @@ from validation.stability import run_stability, stability_markdown
 
 #: Cases that fail today, for reasons outside this table's code (see the
 #: case docstrings); strict, so a fix shows up as an unexpected pass.
-KNOWN_FAILURES = {
-    "cylinder: in the cap plane y = 1":
-        "Mitsuba's proxy mesh test misses rays lying exactly in the top cap plane",
-}
 CASE_NAMES = [
     "cylinder: parallel to the axis", "cylinder: grazing the side",
     "cylinder: in the cap plane y = 0", "cylinder: in the cap plane y = 1",
@@ -40,9 +36,7 @@ def test_every_case_ran(results):
     assert len(results) >= 12
 
 
-@pytest.mark.parametrize("name", [
-    pytest.param(name, marks=pytest.mark.xfail(strict=True, reason=KNOWN_FAILURES[name]))
-    if name in KNOWN_FAILURES else name for name in CASE_NAMES])
+@pytest.mark.parametrize("name", CASE_NAMES)
 def test_case_within_its_bound(results, name):
     result = results[name]
     assert result.nonfinite == 0, f"{result.nonfinite} NaN/Inf"

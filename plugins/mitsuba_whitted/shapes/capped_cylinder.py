@@ -11,6 +11,12 @@ from ..mathutil import invert_affine_f64
 
 PLUGIN_NAME = "capped_cylinder"
 
+#: How far (as a share of the height) the proxy reaches past each cap. A
+#: ray lying exactly in a cap plane would otherwise run along the edges of
+#: the side triangles, which Mitsuba's float32 triangle test misses; with
+#: the pad it crosses their interior and is refined to the exact surface.
+CAP_PAD = 1e-4
+
 #: Traversed parameters whose change rebuilds the mesh.
 SHAPE_KEYS = ("center", "radius", "height", "segments")
 
@@ -33,8 +39,9 @@ def canonical_mesh(segments: int):
     first's position with ``u = 1``: the uv seam), at radius
     ``1/cos(pi/segments)`` so every polygon edge touches the unit circle and
     the true surface lies inside; exact radial normals. Caps: a fan around a
-    centre vertex at exactly ``y = 0`` and ``y = 1``, sharing the side rim's
-    positions bit for bit (watertight), flat normals, planar uv
+    centre vertex at ``y = -CAP_PAD`` and ``y = 1 + CAP_PAD`` (just outside
+    the true caps), sharing the side rim's positions bit for bit
+    (watertight), flat normals, planar uv
     ``((x + 1)/2, (z + 1)/2)``. Triangles wind counter-clockwise seen from
     outside.
     """
@@ -44,9 +51,10 @@ def canonical_mesh(segments: int):
     ring_radius = 1 / np.cos(np.pi / n)
     cos, sin = np.cos(angle), np.sin(angle)
     zeros, ones = np.zeros(n + 1), np.ones(n + 1)
+    low, high = -CAP_PAD * ones, (1 + CAP_PAD) * ones
 
-    side_positions = np.concatenate([np.stack([ring_radius * cos, zeros, ring_radius * sin], 1),
-                                     np.stack([ring_radius * cos, ones, ring_radius * sin], 1)])
+    side_positions = np.concatenate([np.stack([ring_radius * cos, low, ring_radius * sin], 1),
+                                     np.stack([ring_radius * cos, high, ring_radius * sin], 1)])
     side_normals = np.concatenate([np.stack([cos, zeros, sin], 1)] * 2)
     side_uv = np.concatenate([np.stack([column / n, zeros], 1), np.stack([column / n, ones], 1)])
 
@@ -55,8 +63,9 @@ def canonical_mesh(segments: int):
                                  np.stack([bottom, top, top + 1], 1)])
 
     positions, normals, uv, faces = [side_positions], [side_normals], [side_uv], [side_faces]
-    for height, facing in ((0.0, -1.0), (1.0, 1.0)):
-        cap = np.concatenate([[[0.0, height, 0.0]], side_positions[:n] + [0.0, height, 0.0]])
+    for ring_start, facing in ((0, -1.0), (n + 1, 1.0)):
+        rim = side_positions[ring_start:ring_start + n]
+        cap = np.concatenate([[[0.0, rim[0, 1], 0.0]], rim])
         first = sum(len(p) for p in positions)
         ring = first + 1 + np.arange(n)
         ring_next = first + 1 + (np.arange(n) + 1) % n
