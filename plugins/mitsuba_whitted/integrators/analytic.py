@@ -22,6 +22,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..geometry.cylinder import intersect_canonical
+from .offsets import scene_scale, spawn_ray
 
 #: A ray crosses a missed proxy twice (in and out); four lets it pass two
 #: overlapping proxies before giving up (and reporting the proxy hit).
@@ -43,6 +44,7 @@ class AnalyticRefiner:
 
     def __init__(self, scene: mi.Scene, shapes: list):
         self.scene = scene
+        self.scale = scene_scale(scene)
         ids = [_shape_id(shape) for shape in shapes]
         size = max(ids) + 1
         to_canonical = np.zeros((size, 12))
@@ -82,7 +84,7 @@ class AnalyticRefiner:
             self._fill(si, ray, hit, t, p, n, uv)
             missed = pending & ~hit
             travelled[missed] = travelled + si.t
-            current[missed] = si.spawn_ray(ray.d)
+            current[missed] = spawn_ray(si, ray.d, self.scale)
             current.maxt[missed] = ray.maxt - travelled
             si[missed] = self.scene.ray_intersect(current, missed)
             si.t[missed] = si.t + travelled

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
+from .offsets import spawn_ray_to
 from .scene_needs import SceneNeeds
 
 #: Shadow rays cross at most this many pass-through surfaces.
@@ -54,7 +55,7 @@ class ShadowTester:
 
     def transmittance(self, si: mi.SurfaceInteraction3f, target: mi.Point3f,
                       active: mi.Bool) -> mi.Color3f:
-        ray = si.spawn_ray_to(target)
+        ray = spawn_ray_to(si, target, self.needs.scale)
         blocked = self.scene.ray_test(ray, active)
         free = dr.select(active & ~blocked, mi.Color3f(1), mi.Color3f(0))
         if self.opaque:
@@ -77,7 +78,7 @@ class ShadowTester:
             crossings += 1
             active = hit & dr.any(passed > 0) & (crossings < MAX_SHADOW_CROSSINGS)
             weight[hit & ~active] = mi.Color3f(0)
-            ray[active] = si.spawn_ray_to(target)
+            ray[active] = spawn_ray_to(si, target, self.needs.scale)
         return weight
 
     def _pass_weight(self, si: mi.SurfaceInteraction3f, ray: mi.Ray3f,

@@ -29,6 +29,7 @@ import mitsuba as mi
 
 from ..jit import index_range, to_int
 from .lighting import DirectLighting, ShadowTester
+from .offsets import spawn_ray
 from .scene_needs import SceneNeeds
 
 
@@ -277,7 +278,7 @@ class RayTreeTracer:
         weight, direction, ok, code = self._child(kind, component, si, bsdf, ray, active)
         child_throughput = throughput * weight
         ok &= dr.max(child_throughput) > max(self.settings.min_throughput, 0.0)
-        child = si.spawn_ray(direction)
+        child = spawn_ray(si, direction, self.needs.scale)
         child_key = mi.sample_tea_32(key, mi.UInt32(index + 1))[0]
         return child.o, child.d, child_throughput, child_key, dr.select(ok, code, 0)
 

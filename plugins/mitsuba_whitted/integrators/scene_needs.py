@@ -13,6 +13,8 @@ from dataclasses import dataclass, field
 
 import mitsuba as mi
 
+from .offsets import scene_scale
+
 
 @dataclass
 class SceneNeeds:
@@ -30,6 +32,8 @@ class SceneNeeds:
     transmissive: bool = False
     #: Some BSDF has a smooth (diffuse or glossy) part that lights reach.
     smooth_surfaces: bool = False
+    #: The scene's size, for offsets that scale with it (``offsets``).
+    scale: float = 1.0
     #: Shapes whose hits are refined by an exact analytic intersection.
     analytic_shapes: list = field(default_factory=list)
 
@@ -75,5 +79,6 @@ def analyse(scene: mi.Scene) -> SceneNeeds:
     needs.null_surfaces = any(mi.has_flag(b.flags(), mi.BSDFFlags.Null) for b in bsdfs)
     needs.transmissive = bool(needs.transmission_components) or needs.null_surfaces
     needs.smooth_surfaces = any(mi.has_flag(b.flags(), mi.BSDFFlags.Smooth) for b in bsdfs)
+    needs.scale = scene_scale(scene)
     needs.analytic_shapes = [s for s in scene.shapes() if hasattr(s, "world_to_canonical_matrix")]
     return needs
