@@ -162,6 +162,15 @@ def command_bench(args) -> int:
     return 0
 
 
+def _add_scene_options(parser: argparse.ArgumentParser) -> None:
+    """Options every scene-reading command shares."""
+    from . import DEFAULT_VARIANT
+
+    parser.add_argument("-D", "--define", action="append", default=[], metavar="NAME=VALUE",
+                        help="set a $NAME default of the scene")
+    parser.add_argument("--variant", default=DEFAULT_VARIANT)
+
+
 def build_parser() -> argparse.ArgumentParser:
     from . import DEFAULT_VARIANT
 
@@ -174,9 +183,7 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("scene", help="Mitsuba scene file (XML)")
     render.add_argument("-o", "--output", required=True,
                         help="output image (.png, .jpg, .exr, .hdr, .pfm)")
-    render.add_argument("-D", "--define", action="append", default=[], metavar="NAME=VALUE",
-                        help="set a $NAME default of the scene")
-    render.add_argument("--variant", default=DEFAULT_VARIANT)
+    _add_scene_options(render)
     render.set_defaults(run=command_render)
 
     compare = commands.add_parser(
@@ -188,9 +195,7 @@ def build_parser() -> argparse.ArgumentParser:
                          help="samples per pixel of the path reference (default 1024, quick 64)")
     compare.add_argument("--quick", action="store_true",
                          help="fewer settings and a cheaper reference, for a first look")
-    compare.add_argument("-D", "--define", action="append", default=[], metavar="NAME=VALUE",
-                         help="set a $NAME default of the scene")
-    compare.add_argument("--variant", default=DEFAULT_VARIANT)
+    _add_scene_options(compare)
     compare.set_defaults(run=command_compare)
 
     bench_ = commands.add_parser(
@@ -198,9 +203,7 @@ def build_parser() -> argparse.ArgumentParser:
     bench_.add_argument("scene", nargs="?", help="scene (default: the report's scene)")
     bench_.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
     bench_.add_argument("--quick", action="store_true", help="small sizes, few repeats")
-    bench_.add_argument("-D", "--define", action="append", default=[], metavar="NAME=VALUE",
-                        help="set a $NAME default of the scene")
-    bench_.add_argument("--variant", default=DEFAULT_VARIANT)
+    _add_scene_options(bench_)
     bench_.set_defaults(run=command_bench)
 
     info = commands.add_parser("info", help="variant, libLLVM and plugins")
