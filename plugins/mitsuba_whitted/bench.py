@@ -361,7 +361,7 @@ def format_table(results: dict) -> str:
                      f"  {row['rays']:>12,} rays  {row['rays_per_second'] / 1e6:6.2f} M rays/s")
     eq = results["equal_error"]
     relation = {"=": "", "<": "< ", ">": "> "}[eq["relation"]]
-    lines.append(f"  equal-error speed-up over path: {relation}{eq['speedup']:.0f}x on {eq['scene']}"
+    lines.append(f"  equal-error speed-up over path: {relation}{eq['speedup']:.2g}x on {eq['scene']}"
                  f" at {eq['resolution']}^2, {eq['whitted']} (relMSE {eq['whitted_rel_mse']:.2e} in "
                  f"{eq['whitted_seconds']:.3f} s; path needs {relation}{eq['path_spp']:.0f} spp, "
                  f"{eq['path_seconds']:.3f} s; reference {eq['reference_spp']} spp, its own noise "
