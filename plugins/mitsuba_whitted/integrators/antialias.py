@@ -96,7 +96,8 @@ class AdaptiveSampler:
     def render(self, width: int, height: int, shade: ShadeFn):
         budget = int(self.budget_spp * width * height)
         origins = mi.Point2f(_grid_positions(width, height, 1) - 0.5)
-        levels, count = [], SampleCount(per_pixel=dr.zeros(mi.UInt32, width * height))
+        # Every pixel starts with its four quadrant samples.
+        levels, count = [], SampleCount(per_pixel=dr.full(mi.UInt32, 4, width * height))
         size = 1.0
         while True:
             positions = _quadrant_positions(origins, size)
@@ -104,14 +105,15 @@ class AdaptiveSampler:
             radiance, alpha = shade(positions, keys)
             count.samples += dr.width(positions)
             count.per_level += (dr.width(positions),)
-            pixel = mi.UInt32(positions.y) * width + mi.UInt32(positions.x)
-            dr.scatter_reduce(dr.ReduceOp.Add, count.per_pixel, mi.UInt32(1), pixel)
             split = self._split_mask(radiance, len(levels), count, budget)
             levels.append((radiance, alpha, split))
             if split is None:
                 break
             cells = dr.compress(split)
-            origins = mi.Point2f(dr.gather(mi.Point2f, positions, cells) - opaque_float(size / 4))
+            centres = dr.gather(mi.Point2f, positions, cells)
+            pixel = mi.UInt32(centres.y) * width + mi.UInt32(centres.x)
+            dr.scatter_reduce(dr.ReduceOp.Add, count.per_pixel, mi.UInt32(4), pixel)
+            origins = mi.Point2f(centres - opaque_float(size / 4))
             size *= 0.5
             levels[-1] = (radiance, alpha, cells)
         count.levels = len(levels) - 1
