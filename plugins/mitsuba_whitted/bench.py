@@ -16,6 +16,7 @@ bound / actual is the share of the render spent casting rays.
 
 from __future__ import annotations
 
+import gc
 import json
 import os
 import resource
@@ -193,6 +194,10 @@ def scaling_table(scene_path: Path, base: dict, sweeps: dict, repeats: int) -> l
     rows = []
     for parameter, values in sweeps.items():
         for value in values:
+            # Start each setting from the same state: without this, memory
+            # cached from a 2048^2 render slows every later setting.
+            gc.collect()
+            dr.flush_malloc_cache()
             defines = dict(base, **{parameter: str(value)})
             scene = mi.load_file(str(scene_path), **defines)
             timing = time_render(scene, scene.integrator(), repeats)
