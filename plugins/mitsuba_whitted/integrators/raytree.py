@@ -151,13 +151,12 @@ class RayTreeTracer:
         self.captured = None
         self._generation = dr.freeze(self._generation_kernel)
         self._frozen = True
-        # JIT data the kernel reads besides the scene: a frozen function must
-        # receive it as arguments.
-        self._component_tables = [_component_table(scene, kind, component)
-                                  for kind, component in self.components]
-        # Everything the frozen kernel reads besides the scene and its rays.
-        self._kernel_inputs = ((refiner.tables() if refiner is not None else ()),
-                          tuple(self._component_tables))
+        # Everything the frozen kernel reads besides the scene and its rays:
+        # a frozen function must receive its JIT data as arguments.
+        component_tables = tuple(_component_table(scene, kind, component)
+                                 for kind, component in self.components)
+        self._kernel_inputs = (refiner.tables() if refiner is not None else (),
+                               component_tables)
 
     @property
     def fan_out(self) -> int:
@@ -213,7 +212,7 @@ class RayTreeTracer:
             self.stats.refined = self.stats.refined + dr.sum(refined)
         if not candidates:
             return local, alpha, None, None
-        children, slots = self._compact(candidates, len(rays))
+        children, slots = self._compact(candidates)
         return local, alpha, children, slots
 
     def _run_generation(self, rays: RayBatch, work: dict):
@@ -282,15 +281,13 @@ class RayTreeTracer:
         child_key = mi.sample_tea_32(key, mi.UInt32(index + 1))[0]
         return child.o, child.d, child_throughput, child_key, dr.select(ok, code, 0)
 
-    def _compact(self, candidates, parents: int):
+    def _compact(self, candidates):
         """Children of all components in one batch; a child's slot is
         parent x fan-out + component, so folding back is collision free."""
         picks = []
         for component, (*fields, codes) in enumerate(candidates):
-            for kind, code in KIND_CODES.items():
-                if self._may_spawn(kind):
-                    setattr(self.stats, kind, getattr(self.stats, kind) + dr.count(codes == code))
             index = dr.compress(codes != 0)
+            self._count_children(self.components[component][0], codes, dr.width(index))
             if dr.width(index):
                 picks.append((component, index, fields))
         total = sum(dr.width(index) for _, index, _ in picks)
@@ -322,7 +319,12 @@ class RayTreeTracer:
         code = dr.select(reflected, KIND_CODES["reflection"], KIND_CODES["refraction"])
         return weight, si.to_world(bs.wo), ok, mi.UInt32(code)
 
-    def _may_spawn(self, kind: str) -> bool:
-        if kind == "passthrough":
-            return self.needs.null_surfaces
-        return bool(self.needs.delta_components)
+    def _count_children(self, kind: str, codes, count: int) -> None:
+        """Add one component's children to the statistics: a null component
+        only passes rays through; a delta one reflects or refracts them."""
+        if kind == "null":
+            self.stats.passthrough = self.stats.passthrough + count
+            return
+        reflected = dr.count(codes == KIND_CODES["reflection"])
+        self.stats.reflection = self.stats.reflection + reflected
+        self.stats.refraction = self.stats.refraction + (count - reflected)
