@@ -208,3 +208,27 @@ def test_shadow_rays_see_the_exact_surface():
     image = np.array(mi.render(loaded, integrator=mi.load_dict(integrator())))
     assert_finite(image)
     assert image.max() > 0  # the floor outside the cylinder is lit
+
+
+def test_many_cylinders_share_one_table():
+    """Several cylinders, each placed differently, refined in the same
+    pass: every one matches its built-in twin."""
+    placements = [((-1.5, 0, 0), 0.5, 1.0, mi.ScalarTransform4f()),
+                  ((0, -0.5, 0), 0.4, 1.5, mi.ScalarTransform4f().rotate([0, 0, 1], 30)),
+                  ((1.5, 0, 0.3), 0.3, 0.8, mi.ScalarTransform4f().scale(1.2))]
+    sensor = camera(origin=(0, 2, 6), target=(0, 0.3, 0), size=SIZE)
+    ours = {f"c{i}": capped(*p, segments=8) for i, p in enumerate(placements)}
+    theirs = {}
+    for i, p in enumerate(placements):
+        theirs.update({f"{name}{i}": shape for name, shape in builtin_solid(*p).items()})
+    mask, normal, _ = hits(scene(sensor=sensor, **ours), refine=True)
+    ref_mask, ref_normal, _ = hits(scene(sensor=sensor, **theirs), refine=False)
+    assert ref_mask.sum() > 100
+    differ = mask != ref_mask
+    assert not (differ & ~silhouette_band(ref_mask)).any()
+    inside = mask & ref_mask & ~silhouette_band(ref_mask)
+    assert np.sum(normal[inside] * ref_normal[inside], axis=-1).min() > 1 - 1e-4
+    loaded = mi.load_dict(scene(point_light((2, 3, 4)), sensor=sensor, **ours))
+    whitted = mi.load_dict(integrator())
+    assert_finite(mi.render(loaded, integrator=whitted))
+    assert whitted.last_stats["refined"] > 100
