@@ -19,6 +19,7 @@ from __future__ import annotations
 import gc
 import json
 import os
+import re
 import resource
 import statistics
 import subprocess
@@ -154,8 +155,7 @@ def fresh_process_render(scene_path: Path, defines: dict, empty_cache: bool) -> 
         wall = time.perf_counter() - start
     if result.returncode != 0:
         raise RuntimeError(f"mitsuba-whitted bench: the child render failed: {result.stderr.strip()}")
-    line = result.stdout.strip().splitlines()[-1]
-    render = float(line.split(" rendered in ")[1].split(" s")[0])
+    render = float(re.findall(r" rendered in ([0-9.]+) s", result.stdout)[-1])
     return {"process_seconds": wall, "render_seconds": render}
 
 
@@ -166,12 +166,13 @@ def child_peak_memory(scene_path: Path, defines: dict) -> float:
             "defines = json.loads(sys.argv[2])\n"
             "scene = mi.load_file(sys.argv[1], **defines)\n"
             "mi.render(scene); dr.sync_thread()\n"
-            "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)\n")
+            "print('peak_rss_mib', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)\n")
     result = subprocess.run([sys.executable, "-c", code, str(scene_path), json.dumps(defines)],
                             capture_output=True, text=True, timeout=1800)
     if result.returncode != 0:
         raise RuntimeError(f"mitsuba-whitted bench: the child render failed: {result.stderr.strip()}")
-    return float(result.stdout.strip().splitlines()[-1])
+    # Mitsuba's log shares stdout (with colour codes): find our own line.
+    return float(re.findall(r"peak_rss_mib ([0-9.]+)", result.stdout)[-1])
 
 
 # ----------------------------------------------------------------- scaling
