@@ -58,10 +58,10 @@ def render_grid(width: int, height: int, n: int, shade: ShadeFn):
     """Box-filtered pixels from n x n stratified samples (n = 1: centres)."""
     positions = _grid_positions(width, height, n)
     radiance, alpha = shade(positions, dr.arange(mi.UInt32, dr.width(positions)))
-    if n == 1:
-        return radiance, alpha, SampleCount(dr.width(positions), 0, (dr.width(positions),))
-    scale = 1.0 / (n * n)
     count = SampleCount(dr.width(positions), 0, (dr.width(positions),))
+    if n == 1:
+        return radiance, alpha, count
+    scale = 1.0 / (n * n)
     return sum_blocks(radiance, n * n) * scale, sum_blocks(alpha, n * n) * scale, count
 
 

@@ -31,7 +31,6 @@ PROBE_DIRECTION = (0.6, 0.0, 0.8)
 @dataclass
 class LightingSettings:
     ambient: mi.ScalarColor3f
-    shadows: str            # "physical" or "seed"
     emitter_samples: int
     seed: int
 

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import drjit as dr
 import mitsuba as mi
 
-from ..jit import index_range, to_int
+from ..jit import index_range, sum_blocks, to_int
 from .lighting import DirectLighting, ShadowTester
 from .offsets import spawn_ray
 from .scene_needs import SceneNeeds
@@ -181,14 +181,7 @@ class RayTreeTracer:
             part = index_range(start, min(start + step, len(children)))
             radiance, _ = self._trace(children.take(part), generation + 1)
             dr.scatter(folded, radiance, dr.gather(mi.UInt32, slots, part))
-        return local + self._sum_children(folded, len(rays)), alpha
-
-    def _sum_children(self, folded: mi.Color3f, parents: int) -> mi.Color3f:
-        base = dr.arange(mi.UInt32, parents) * self.fan_out
-        total = dr.gather(mi.Color3f, folded, base)
-        for k in range(1, self.fan_out):
-            total += dr.gather(mi.Color3f, folded, base + k)
-        return total
+        return local + sum_blocks(folded, self.fan_out), alpha
 
     def _shade(self, rays: RayBatch, generation: int):
         """Local radiance and alpha of one generation, its compacted children

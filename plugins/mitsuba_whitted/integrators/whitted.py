@@ -171,7 +171,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         intersect = refiner.intersect if refiner else _plain_intersect(scene)
         shadows = ShadowTester(scene, needs, self.shadows, intersect)
         lighting = DirectLighting(
-            needs, LightingSettings(self.ambient, self.shadows, self.emitter_samples, seed),
+            needs, LightingSettings(self.ambient, self.emitter_samples, seed),
             shadows)
         depth = UNBOUNDED_DEPTH if self.max_depth == -1 else self.max_depth
         settings = TreeSettings(depth, self.min_throughput, self.hide_emitters,
