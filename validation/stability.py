@@ -411,7 +411,7 @@ def fresnel_f64(cos_i, n_i, n_t):
 def delta_children(wi_local: np.ndarray, n_world: np.ndarray = None, d_world: np.ndarray = None):
     """The ``whitted`` integrator's two delta children of a glass hit
     (``bsdf.sample`` with one component and the Delta mask, as
-    ``raytree._child`` does): weights and world directions. Either a local
+    ``shading.HitShader._child`` does): weights and world directions. Either a local
     ``wi`` or a world normal and incident direction is given."""
     glass = mi.load_dict({"type": "dielectric", "int_ior": IOR, "ext_ior": 1.0})
     count = len(wi_local if wi_local is not None else n_world)

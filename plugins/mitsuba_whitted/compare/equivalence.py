@@ -18,7 +18,6 @@ standard error; it is far below any modelling difference worth finding.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from statistics import NormalDist
 

@@ -20,17 +20,14 @@ traced one after the other (depth first), so memory stays bounded by about
 
 from __future__ import annotations
 
-import gc
-from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import drjit as dr
 import mitsuba as mi
 
 from ..jit import index_range, sum_blocks, to_int
-from .lighting import DirectLighting, ShadowTester
-from .offsets import spawn_ray
-from .scene_needs import SceneNeeds
+from .frozen import FrozenKernel
+from .shading import KIND_CODES, HitShader, HitWork
 
 
 @dataclass
@@ -57,53 +54,6 @@ class RayStats:
         return counts
 
 
-@contextmanager
-def _no_garbage_collection():
-    """Keep Python's cycle collector out of a frozen function's recording:
-    if it frees Dr.Jit memory then, Dr.Jit aborts the process
-    ("enqueue_host_func(): this function cannot be recorded")."""
-    enabled = gc.isenabled()
-    gc.disable()
-    try:
-        yield
-    finally:
-        if enabled:
-            gc.enable()
-
-
-def _component_table(scene: mi.Scene, kind: str, component) -> "mi.Bool":
-    """Per BSDF registry id: whether that BSDF has this delta component
-    (``kind == "null"``: whether it lets light pass through unscattered)."""
-    bsdfs = {id(shape.bsdf()): shape.bsdf() for shape in scene.shapes() if shape.bsdf()}
-    entries = {}
-    for bsdf in bsdfs.values():
-        index = int(dr.reinterpret_array(mi.UInt32, mi.BSDFPtr(bsdf))[0])
-        if kind == "null":
-            entries[index] = mi.has_flag(bsdf.flags(), mi.BSDFFlags.Null)
-        else:
-            entries[index] = (component < bsdf.component_count()
-                              and mi.has_flag(bsdf.flags(component), mi.BSDFFlags.Delta)
-                              and not mi.has_flag(bsdf.flags(component), mi.BSDFFlags.Null))
-    table = [False] * (max(entries, default=0) + 1)
-    for index, value in entries.items():
-        table[index] = bool(value)
-    return mi.Bool(table)
-
-
-def _widths_match(outputs, width: int) -> bool:
-    """Every array in ``outputs`` (nested lists/tuples, ``None`` allowed) is
-    ``width`` wide or a single value."""
-    if outputs is None:
-        return True
-    if isinstance(outputs, (list, tuple)):
-        return all(_widths_match(item, width) for item in outputs)
-    return dr.width(outputs) in (width, 1)
-
-
-#: Codes stored per candidate child; 0 means "no child".
-KIND_CODES = {"reflection": 1, "refraction": 2, "passthrough": 3}
-
-
 class RayBatch:
     """Rays of one generation: origin, direction, throughput, hash key."""
 
@@ -123,44 +73,26 @@ class RayBatch:
         return self.o, self.d, self.throughput, self.key
 
 
-@dataclass
-class TreeSettings:
-    max_depth: int          # Mitsuba's convention, already mapped from -1
-    min_throughput: float
-    hide_emitters: bool
-    wavefront_size: int
-
-
 class RayTreeTracer:
     """Traces batches of camera rays to radiance, generation by generation."""
 
-    def __init__(self, scene: mi.Scene, needs: SceneNeeds, settings: TreeSettings,
-                 lighting: DirectLighting, intersect, refiner=None):
-        self.scene = scene
-        self.needs = needs
-        self.settings = settings
-        self.lighting = lighting
+    def __init__(self, shader: HitShader, intersect, refiner=None):
+        self.shader = shader
+        self.settings = shader.settings
         self.intersect = intersect
         self.refiner = refiner
-        self.components = [("delta", c) for c in needs.delta_components]
-        if needs.null_surfaces:
-            self.components.append(("null", None))
+        self.fan_out = shader.fan_out
         self.stats = RayStats()
         #: When a list, every traced batch is appended to it (benchmarks
         #: replay the very same rays through Mitsuba's own ray casting).
         self.captured = None
-        self._generation = dr.freeze(self._generation_kernel)
-        self._frozen = True
-        # Everything the frozen kernel reads besides the scene and its rays:
-        # a frozen function must receive its JIT data as arguments.
-        component_tables = tuple(_component_table(scene, kind, component)
-                                 for kind, component in self.components)
+        #: One frozen kernel per combination of work: Dr.Jit 1.5 does not
+        #: always record anew when only a Python flag argument changes
+        #: (measured: a kernel recorded with children replayed without).
+        self._generation = {}
+        # Everything the frozen kernel reads besides the scene and its rays.
         self._kernel_inputs = (refiner.tables() if refiner is not None else (),
-                               component_tables)
-
-    @property
-    def fan_out(self) -> int:
-        return len(self.components)
+                               shader.tables())
 
     def trace(self, rays: RayBatch):
         """Radiance and alpha (primary hit) of each camera ray."""
@@ -186,18 +118,14 @@ class RayTreeTracer:
     def _shade(self, rays: RayBatch, generation: int):
         """Local radiance and alpha of one generation, its compacted children
         and the slot (parent x fan-out + component) of each child."""
-        depth = self.settings.max_depth
-        direct = generation + 2 <= depth
-        work = dict(
-            emit=(generation + 1 <= depth and self.needs.hittable_emitters
-                  and not (generation == 0 and self.settings.hide_emitters)),
-            light=direct and self.needs.smooth_surfaces,
-            # Children are worth tracing if they can see emission or shade.
-            spawn=direct and self.fan_out > 0 and (self.needs.hittable_emitters
-                                                  or generation + 3 <= depth))
-        if not any(work.values()) and generation > 0:
+        work = self.shader.work(generation)
+        if not work.any() and generation > 0:
             return dr.zeros(mi.Color3f, len(rays)), None, None, None
-        local, alpha, shadow, refined, candidates = self._run_generation(rays, work)
+        flags = (work.emit, work.light, work.spawn)
+        if flags not in self._generation:
+            self._generation[flags] = FrozenKernel(self._kernel_doing(work), "wavefront tracer")
+        local, alpha, shadow, refined, candidates = self._generation[flags](
+            len(rays), self.shader.scene, self._kernel_inputs, *rays.fields())
         local = dr.zeros(mi.Color3f, len(rays)) if local is None else local
         if shadow is not None:
             self.stats.shadow = self.stats.shadow + dr.sum(shadow)
@@ -208,31 +136,15 @@ class RayTreeTracer:
         children, slots = self._compact(candidates)
         return local, alpha, children, slots
 
-    def _run_generation(self, rays: RayBatch, work: dict):
-        """The frozen generation kernel, or the plain one if freezing fails.
+    def _kernel_doing(self, work: HitWork):
+        def kernel(scene, inputs, o, d, throughput, key):
+            return self._generation_kernel(scene, inputs, o, d, throughput, key, work)
+        return kernel
 
-        A frozen replay must return arrays as wide as its rays; if Dr.Jit
-        ever refuses to record or replays a wrong width, this tracer falls
-        back to tracing every generation anew (slower, same result)."""
-        args = (self.scene, self._kernel_inputs, *rays.fields())
-        if self._frozen:
-            try:
-                with _no_garbage_collection():
-                    outputs = self._generation(*args, **work)
-                if _widths_match(outputs, len(rays)):
-                    return outputs
-                problem = "a replay returned arrays of the wrong width"
-            except RuntimeError as error:
-                problem = str(error).splitlines()[0]
-            self._frozen = False
-            mi.Log(mi.LogLevel.Warn, f"whitted: tracing without frozen kernels ({problem}).")
-        return self._generation_kernel(*args, **work)
-
-    def _generation_kernel(self, scene, inputs, o, d, throughput, key,
-                           emit: bool, light: bool, spawn: bool):
+    def _generation_kernel(self, scene, inputs, o, d, throughput, key, work: HitWork):
         """Everything one generation computes, as one traced function of its
         rays: radiance, alpha, shadow rays and refinements per lane, and one
-        candidate child per delta component (fields + kind code, 0 = none).
+        candidate child per delta component.
 
         It reads no sizes, so Dr.Jit can freeze it and replay its kernels for
         every later generation, part and anti-aliasing level. Outputs that
@@ -244,35 +156,14 @@ class RayTreeTracer:
         # dispatch on evaluated pointers (measured ~30% faster shading).
         dr.eval(si)
         hit = si.is_valid()
-        local = shadow = refined = None
-        candidates = []
+        refined = None
         if self.refiner is not None:
             refined = mi.UInt32(self.refiner.on_proxy(si, hit))
-        if emit:
-            local = si.emitter(scene).eval(si)
-        if light or spawn:
-            bsdf = si.bsdf(ray)
-        if light:
-            radiance, shadow = self.lighting.radiance(si, bsdf, key, hit)
-            local = radiance if local is None else local + radiance
-        if spawn:
-            bsdf_id = dr.reinterpret_array(mi.UInt32, bsdf)
-            for index, (kind, component) in enumerate(self.components):
-                # Only lanes whose BSDF has this component call into it.
-                has = dr.gather(mi.Bool, inputs[1][index], bsdf_id, hit)
-                candidates.append(self._candidate(index, kind, component, si, bsdf, ray,
-                                                  throughput, key, hit & has))
-        if local is not None:
-            local = local * throughput
+        local, shadow, children = self.shader.shade(
+            si, ray, throughput, key, inputs[1], work)
+        candidates = [(child.o, child.d, child.throughput, child.key, child.code)
+                      for child in children]
         return local, mi.Float(hit), shadow, refined, candidates
-
-    def _candidate(self, index, kind, component, si, bsdf, ray, throughput, key, active):
-        weight, direction, ok, code = self._child(kind, component, si, bsdf, ray, active)
-        child_throughput = throughput * weight
-        ok &= dr.max(child_throughput) > max(self.settings.min_throughput, 0.0)
-        child = spawn_ray(si, direction, self.needs.scale)
-        child_key = mi.sample_tea_32(key, mi.UInt32(index + 1))[0]
-        return child.o, child.d, child_throughput, child_key, dr.select(ok, code, 0)
 
     def _compact(self, candidates):
         """Children of all components in one batch; a child's slot is
@@ -280,7 +171,7 @@ class RayTreeTracer:
         picks = []
         for component, (*fields, codes) in enumerate(candidates):
             index = dr.compress(codes != 0)
-            self._count_children(self.components[component][0], codes, dr.width(index))
+            self._count_children(self.shader.components[component][0], codes, dr.width(index))
             if dr.width(index):
                 picks.append((component, index, fields))
         total = sum(dr.width(index) for _, index, _ in picks)
@@ -298,19 +189,6 @@ class RayTreeTracer:
             offset += dr.width(index)
         dr.eval(*batch.fields(), slots)
         return batch, slots
-
-    def _child(self, kind, component, si, bsdf, ray, active):
-        """Weight, direction, validity and kind code of one delta child."""
-        if kind == "null":
-            weight = bsdf.eval_null_transmission(si, active)
-            return weight, ray.d, active & dr.any(weight > 0), mi.UInt32(KIND_CODES["passthrough"])
-        ctx = mi.BSDFContext(mi.TransportMode.Radiance, mi.BSDFFlags.Delta, component)
-        bs, weight = bsdf.sample(ctx, si, 0.5, mi.Point2f(0.5), active)
-        ok = (active & (bs.pdf > 0) & mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
-              & dr.any(weight > 0))
-        reflected = mi.has_flag(bs.sampled_type, mi.BSDFFlags.DeltaReflection)
-        code = dr.select(reflected, KIND_CODES["reflection"], KIND_CODES["refraction"])
-        return weight, si.to_world(bs.wo), ok, mi.UInt32(code)
 
     def _count_children(self, kind: str, codes, count: int) -> None:
         """Add one component's children to the statistics: a null component

@@ -9,7 +9,9 @@ from ..errors import ParameterError, VariantError, check, check_choice
 from . import antialias
 from .analytic import AnalyticRefiner
 from .lighting import DirectLighting, LightingSettings, ShadowTester
-from .raytree import RayBatch, RayTreeTracer, TreeSettings
+from .raytree import RayBatch, RayTreeTracer
+from .shading import HitShader, TreeSettings
+from .stacktree import StackTreeTracer
 from .scene_needs import analyse
 
 PLUGIN_NAME = "whitted"
@@ -164,8 +166,10 @@ class WhittedIntegrator(mi.SamplingIntegrator):
 
     # ------------------------------------------------------------------ setup
 
-    def make_tracer(self, scene: mi.Scene, seed: int = 0) -> RayTreeTracer:
-        """A ray-tree tracer specialised to what ``scene`` contains."""
+    def make_tracer(self, scene: mi.Scene, seed: int = 0, wavefront: bool = False):
+        """A ray-tree tracer specialised to what ``scene`` contains: the
+        stack tracer where its stack is deep enough, else (or when asked,
+        e.g. to capture each generation's rays) the wavefront tracer."""
         needs = analyse(scene)
         refiner = AnalyticRefiner(scene, needs.analytic_shapes) if needs.analytic_shapes else None
         intersect = refiner.intersect if refiner else _plain_intersect(scene)
@@ -176,7 +180,10 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         depth = UNBOUNDED_DEPTH if self.max_depth == -1 else self.max_depth
         settings = TreeSettings(depth, self.min_throughput, self.hide_emitters,
                                 self.wavefront_size)
-        return RayTreeTracer(scene, needs, settings, lighting, intersect, refiner)
+        shader = HitShader(scene, needs, settings, lighting)
+        if not wavefront and StackTreeTracer.supports(depth, shader.fan_out):
+            return StackTreeTracer(shader, intersect, refiner)
+        return RayTreeTracer(shader, intersect, refiner)
 
     # ---------------------------------------------------------------- render
 
@@ -186,7 +193,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
             sensor = scene.sensors()[sensor]
         film = sensor.film()
         channels = _prepare_film(film)
-        tracer = self.make_tracer(scene, int(seed))
+        tracer = self.make_tracer(scene, int(seed), wavefront=self.capture_rays)
         tracer.captured = [] if self.capture_rays else None
         width, height = film.crop_size()
         with dr.suspend_grad():
@@ -211,7 +218,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         n = self.aa_samples if self.aa == "grid" else 1
         return antialias.render_grid(width, height, n, shade)
 
-    def _camera_shader(self, tracer: RayTreeTracer, sensor: mi.Sensor):
+    def _camera_shader(self, tracer, sensor: mi.Sensor):
         """``shade(positions, keys)``: trace camera rays through crop pixels,
         in parts of at most ``wavefront_size`` rays."""
         def shade(positions: mi.Point2f, keys: mi.UInt32):

@@ -1,0 +1,73 @@
+"""Kernels frozen with ``dr.freeze``, and traced anew if freezing fails.
+
+A frozen function replays the kernels it recorded without running its
+Python code again, which for a tracer's thousands of operations is most of
+the time of a small launch. Dr.Jit 1.5 can still refuse to record some
+constructions or, if misused, replay arrays of a wrong width; either way the
+kernel warns once and from then on runs its function unfrozen (slower, same
+result).
+"""
+
+from __future__ import annotations
+
+import gc
+from contextlib import contextmanager
+
+import drjit as dr
+import mitsuba as mi
+
+
+@contextmanager
+def _no_garbage_collection():
+    """Keep Python's cycle collector out of a frozen function's recording:
+    if it frees Dr.Jit memory then, Dr.Jit aborts the process
+    ("enqueue_host_func(): this function cannot be recorded")."""
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if enabled:
+            gc.enable()
+
+
+def widths_match(outputs, width: int) -> bool:
+    """Every array in ``outputs`` (nested lists, tuples, dicts, dataclasses; ``None``
+    allowed) is ``width`` wide or a single value."""
+    if outputs is None:
+        return True
+    if isinstance(outputs, dict):
+        return widths_match(list(outputs.values()), width)
+    if isinstance(outputs, (list, tuple)):
+        return all(widths_match(item, width) for item in outputs)
+    if hasattr(outputs, "__dataclass_fields__"):
+        return widths_match([getattr(outputs, name) for name in outputs.__dataclass_fields__],
+                            width)
+    return dr.width(outputs) in (width, 1)
+
+
+class FrozenKernel:
+    """``kernel(width, *args, **kwargs)``: ``function``'s outputs, which
+    must be ``width`` wide. JIT data the function reads must come in through
+    its arguments (a frozen function sees nothing else)."""
+
+    def __init__(self, function, name: str):
+        self.function = function
+        self.name = name
+        self.frozen = dr.freeze(function)
+        self.enabled = True
+
+    def __call__(self, width: int, *args, **kwargs):
+        if self.enabled:
+            try:
+                with _no_garbage_collection():
+                    outputs = self.frozen(*args, **kwargs)
+                if widths_match(outputs, width):
+                    return outputs
+                problem = "a replay returned arrays of the wrong width"
+            except RuntimeError as error:
+                problem = str(error).splitlines()[0]
+            self.enabled = False
+            mi.Log(mi.LogLevel.Warn,
+                   f"whitted: tracing without frozen kernels in the {self.name} ({problem}).")
+        return self.function(*args, **kwargs)
