@@ -127,3 +127,31 @@ def test_each_tracer_where_it_belongs():
     unbounded = mi.load_dict(integrator(max_depth=-1))
     assert stack_capacity(256, 2) > MAX_STACK
     assert isinstance(unbounded.make_tracer(loaded), RayTreeTracer)
+
+
+def _change_lights_and_colours(loaded):
+    params = mi.traverse(loaded)
+    for key in params.keys():
+        if key.endswith("intensity.value"):
+            params[key] = params[key] * 0.5
+        elif key.endswith("bsdf.reflectance.value"):
+            params[key] = mi.Color3f(0.1, 0.7, 0.2)
+    params.update()
+
+
+def test_a_reused_tracer_sees_parameter_updates():
+    """The second render with one integrator replays the first render's
+    kernels; lights and colours changed through ``mi.traverse`` in between
+    must show exactly as in a fresh render of a fresh copy."""
+    path = str(ROOT / "scenes" / "cases" / "cylinder.xml")
+    loaded = mi.load_file(path, res="32")
+    before = np.array(mi.render(loaded))
+    tracer = loaded.integrator()._last_tracer.tracer
+    _change_lights_and_colours(loaded)
+    reused = np.array(mi.render(loaded))
+    assert loaded.integrator()._last_tracer.tracer is tracer
+    copy = mi.load_file(path, res="32")
+    _change_lights_and_colours(copy)
+    fresh = np.array(mi.render(copy))
+    assert not np.allclose(reused, before)
+    np.testing.assert_array_equal(reused, fresh)

@@ -45,16 +45,21 @@ class AnalyticRefiner:
     def __init__(self, scene: mi.Scene, shapes: list):
         self.scene = scene
         self.scale = scene_scale(scene)
-        ids = [_shape_id(shape) for shape in shapes]
+        self.shapes = shapes
+        self.F64 = dr.float64_array_t(mi.Float)
+        self.load_tables()
+
+    def load_tables(self) -> None:
+        """Read the shapes' placements (again, after a parameter update)."""
+        ids = [_shape_id(shape) for shape in self.shapes]
         size = max(ids) + 1
         to_canonical = np.zeros((size, 12))
         to_world = np.zeros((size, 12))
         analytic = np.zeros(size, dtype=bool)
-        for shape, index in zip(shapes, ids):
+        for shape, index in zip(self.shapes, ids):
             to_canonical[index] = _rows(shape.world_to_canonical_matrix())
             to_world[index] = _rows(shape.canonical_to_world_matrix())
             analytic[index] = True
-        self.F64 = dr.float64_array_t(mi.Float)
         self.to_canonical = self.F64(to_canonical.ravel())
         self.to_world = self.F64(to_world.ravel())
         self.analytic = mi.Bool(analytic)

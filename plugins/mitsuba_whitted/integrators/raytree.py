@@ -73,26 +73,41 @@ class RayBatch:
         return self.o, self.d, self.throughput, self.key
 
 
-class RayTreeTracer:
-    """Traces batches of camera rays to radiance, generation by generation."""
+class Tracer:
+    """What both tracers hold: ``trace(rays)`` gives radiance and alpha
+    (primary hit) of camera rays and adds to ``stats``."""
 
     def __init__(self, shader: HitShader, intersect, refiner=None):
         self.shader = shader
         self.settings = shader.settings
         self.intersect = intersect
         self.refiner = refiner
-        self.fan_out = shader.fan_out
-        self.stats = RayStats()
         #: When a list, every traced batch is appended to it (benchmarks
         #: replay the very same rays through Mitsuba's own ray casting).
         self.captured = None
+        self.reload()
+
+    def reload(self) -> None:
+        """Fresh statistics, and the tables the kernels read besides the
+        scene and the rays (shape placements may have changed since the
+        last render; frozen kernels take them as arguments)."""
+        self.stats = RayStats()
+        if self.refiner is not None:
+            self.refiner.load_tables()
+        self._kernel_inputs = (self.refiner.tables() if self.refiner is not None else (),
+                               self.shader.tables())
+
+
+class RayTreeTracer(Tracer):
+    """Traces batches of camera rays to radiance, generation by generation."""
+
+    def __init__(self, shader: HitShader, intersect, refiner=None):
+        super().__init__(shader, intersect, refiner)
+        self.fan_out = shader.fan_out
         #: One frozen kernel per combination of work: Dr.Jit 1.5 does not
         #: always record anew when only a Python flag argument changes
         #: (measured: a kernel recorded with children replayed without).
         self._generation = {}
-        # Everything the frozen kernel reads besides the scene and its rays.
-        self._kernel_inputs = (refiner.tables() if refiner is not None else (),
-                               shader.tables())
 
     def trace(self, rays: RayBatch):
         """Radiance and alpha (primary hit) of each camera ray."""

@@ -33,7 +33,7 @@ import drjit as dr
 import mitsuba as mi
 
 from .frozen import FrozenKernel
-from .raytree import RayBatch, RayStats
+from .raytree import RayBatch, Tracer
 from .shading import KIND_CODES, HitShader
 
 #: Most rays one lane's stack holds; deeper trees use the wavefront tracer.
@@ -81,20 +81,13 @@ class LaneStack:
         return values
 
 
-class StackTreeTracer:
+class StackTreeTracer(Tracer):
     """Traces batches of camera rays to radiance, each tree in one loop."""
 
     def __init__(self, shader: HitShader, intersect, refiner=None):
-        self.shader = shader
-        self.settings = shader.settings
-        self.intersect = intersect
-        self.refiner = refiner
+        super().__init__(shader, intersect, refiner)
         self.capacity = stack_capacity(self.settings.max_depth, shader.fan_out)
-        self.stats = RayStats()
-        self.captured = None
         self._kernel = FrozenKernel(self._trace_kernel, "stack tracer")
-        self._kernel_inputs = (refiner.tables() if refiner is not None else (),
-                               shader.tables())
 
     @staticmethod
     def supports(max_depth: int, fan_out: int) -> bool:

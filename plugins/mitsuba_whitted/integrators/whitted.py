@@ -12,7 +12,7 @@ from .lighting import DirectLighting, LightingSettings, ShadowTester
 from .raytree import RayBatch, RayTreeTracer
 from .shading import HitShader, TreeSettings
 from .stacktree import StackTreeTracer
-from .scene_needs import analyse
+from .scene_needs import SceneNeeds, analyse
 
 PLUGIN_NAME = "whitted"
 
@@ -143,6 +143,8 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         #: Set to keep every ray batch of the next render in ``last_rays``.
         self.capture_rays = False
         self.last_rays = None
+        #: The last render's tracer: see ``_tracer_for``.
+        self._last_tracer = _LastTracer()
 
     def _validate(self):
         check(self.max_depth >= -1, PLUGIN_NAME, "max_depth",
@@ -166,11 +168,12 @@ class WhittedIntegrator(mi.SamplingIntegrator):
 
     # ------------------------------------------------------------------ setup
 
-    def make_tracer(self, scene: mi.Scene, seed: int = 0, wavefront: bool = False):
+    def make_tracer(self, scene: mi.Scene, seed: int = 0, wavefront: bool = False,
+                    needs: SceneNeeds = None):
         """A ray-tree tracer specialised to what ``scene`` contains: the
         stack tracer where its stack is deep enough, else (or when asked,
         e.g. to capture each generation's rays) the wavefront tracer."""
-        needs = analyse(scene)
+        needs = needs or analyse(scene)
         refiner = AnalyticRefiner(scene, needs.analytic_shapes) if needs.analytic_shapes else None
         intersect = refiner.intersect if refiner else _plain_intersect(scene)
         shadows = ShadowTester(scene, needs, self.shadows, intersect)
@@ -185,6 +188,26 @@ class WhittedIntegrator(mi.SamplingIntegrator):
             return StackTreeTracer(shader, intersect, refiner)
         return RayTreeTracer(shader, intersect, refiner)
 
+    def _tracer_for(self, scene: mi.Scene, seed: int):
+        """The last render's tracer if nothing it was built from changed
+        (the scene object, what the scene needs, the seed, this
+        integrator's parameters), so that its frozen kernels replay rather
+        than being recorded again; else a new one. Scene data the kernels
+        read (parameters updated through ``mi.traverse``) reach them as
+        arguments either way."""
+        needs = analyse(scene)
+        built_from = (scene, needs, seed, self.capture_rays, self._parameter_values())
+        if self._last_tracer.built_from == built_from:
+            self._last_tracer.tracer.reload()
+            return self._last_tracer.tracer
+        tracer = self.make_tracer(scene, seed, wavefront=self.capture_rays, needs=needs)
+        self._last_tracer.keep(built_from, tracer)
+        return tracer
+
+    def _parameter_values(self) -> tuple:
+        return (self.max_depth, self.shadows, self.emitter_samples, self.min_throughput,
+                self.hide_emitters, self.wavefront_size, tuple(self.ambient))
+
     # ---------------------------------------------------------------- render
 
     def render(self, scene: mi.Scene, sensor=0, seed=0, spp=0,
@@ -193,7 +216,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
             sensor = scene.sensors()[sensor]
         film = sensor.film()
         channels = _prepare_film(film)
-        tracer = self.make_tracer(scene, int(seed), wavefront=self.capture_rays)
+        tracer = self._tracer_for(scene, int(seed))
         tracer.captured = [] if self.capture_rays else None
         width, height = film.crop_size()
         with dr.suspend_grad():
@@ -273,6 +296,20 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     def to_string(self):
         return (f"WhittedIntegrator[max_depth={self.max_depth}, shadows={self.shadows}, "
                 f"aa={self.aa}, ambient={list(self.ambient)}]")
+
+
+class _LastTracer:
+    """A tracer and what it was built from. A plain object, which Dr.Jit
+    does not look into when a frozen kernel traverses the scene and with it
+    this integrator (a tuple there would lead back to the scene, a cycle)."""
+
+    __slots__ = ("built_from", "tracer")
+
+    def __init__(self):
+        self.built_from = self.tracer = None
+
+    def keep(self, built_from: tuple, tracer) -> None:
+        self.built_from, self.tracer = built_from, tracer
 
 
 def _require_supported_variant():
