@@ -40,7 +40,7 @@ class RayStats:
     shadow: object = 0
     #: Hits on analytic proxies made exact (not extra rays).
     refined: object = 0
-    generations: int = 0
+    generations: object = 0
     batches: int = 0
 
     KINDS = ("camera", "reflection", "refraction", "passthrough", "shadow")
@@ -49,7 +49,7 @@ class RayStats:
         counts = {kind: to_int(getattr(self, kind)) for kind in self.KINDS}
         counts["total"] = sum(counts.values())
         counts["refined"] = to_int(self.refined)
-        counts["generations"] = self.generations
+        counts["generations"] = to_int(self.generations)
         counts["batches"] = self.batches
         return counts
 

@@ -101,7 +101,8 @@ class StackTreeTracer(Tracer):
             len(rays), self.shader.scene, self._kernel_inputs, *rays.fields())
         for kind, count in counts.items():
             setattr(self.stats, kind, getattr(self.stats, kind) + dr.sum(count))
-        self.stats.generations = max(self.stats.generations, int(dr.max(deepest)[0]) + 1)
+        # Kept on the device: reading it here would wait for the kernel.
+        self.stats.generations = dr.maximum(self.stats.generations, dr.max(deepest) + 1)
         return radiance, alpha
 
     @dr.syntax
