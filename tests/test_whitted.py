@@ -224,3 +224,20 @@ def test_falls_back_when_a_frozen_replay_goes_wrong(monkeypatch, max_depth):
     monkeypatch.setattr(dr, "freeze", broken_freeze)
     image, _ = render(glass_scene(size=16), max_depth=max_depth)
     np.testing.assert_array_equal(image, expected)
+
+
+@pytest.mark.parametrize("shape, skipped", [("rectangle", True), ("disk", True),
+                                            ("sphere", True), ("cube", False)])
+def test_a_light_skips_its_own_hits_only_where_it_cannot_see_itself(shape, skipped):
+    """Flat and spherical lights cannot light their own surface, so their
+    samples are skipped there; a mesh (which may be concave) keeps them."""
+    from mitsuba_whitted.integrators.lighting import _on_own_shape
+    loaded = mi.load_dict({"type": "scene",
+                           "light": {"type": shape, "emitter": {"type": "area"}},
+                           "other": sphere((0, 0, -5), 0.5, diffuse(0.5, 0.5, 0.5))})
+    rays = mi.Ray3f(mi.Point3f(0, 0, 5), mi.Vector3f(0, 0, -1))
+    hit_light = loaded.ray_intersect(rays)
+    hit_other = loaded.ray_intersect(mi.Ray3f(mi.Point3f(0, 0, -3), mi.Vector3f(0, 0, -1)))
+    light = loaded.emitters()[0]
+    assert bool(_on_own_shape(light, hit_light)[0]) == skipped
+    assert not bool(_on_own_shape(light, hit_other)[0])

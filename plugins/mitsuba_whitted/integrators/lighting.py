@@ -23,6 +23,9 @@ MAX_SHADOW_CROSSINGS = 16
 R2_STEP = (0.7548776662466927, 0.5698402909980532)
 #: A direction this close to the incoming one counts as "straight through".
 STRAIGHT_COSINE = 1.0 - 1e-5
+#: Shapes none of whose points sees any other part of the same shape: an
+#: area light on one cannot light itself, so its own hits skip its samples.
+SELF_HIDDEN_SHAPES = (mi.ShapeType.Rectangle, mi.ShapeType.Disk, mi.ShapeType.Sphere)
 #: Oblique local direction used to tell index-matched from refracting
 #: surfaces: at normal incidence even glass does not bend a ray.
 PROBE_DIRECTION = (0.6, 0.0, 0.8)
@@ -161,11 +164,12 @@ class DirectLighting:
     def _sampled(self, light, index, si, bsdf, key, active) -> mi.Color3f:
         """Mean of ``emitter_samples`` shadow rays, spread by the R2 sequence."""
         count = self.settings.emitter_samples
+        active = active & ~_on_own_shape(light, si)
         rotation = _unit_pair(key, self.settings.seed * 7919 + index)
         total = mi.Color3f(0)
         cast = mi.UInt32(0)
         s = mi.UInt32(0)
-        while s < count:
+        while active & (s < count):
             step = mi.Float(s)
             u = mi.Point2f(rotation[0] + step * R2_STEP[0],
                            rotation[1] + step * R2_STEP[1])
@@ -175,3 +179,12 @@ class DirectLighting:
             cast += mi.UInt32(lit)
             s += 1
         return total / count, cast
+
+
+def _on_own_shape(light, si: mi.SurfaceInteraction3f) -> mi.Bool:
+    """Hits on the light's own shape, where that shape cannot see itself
+    (every sample there would be at or past grazing and add nothing)."""
+    shape = light.get_shape()
+    if shape is None or shape.shape_type() not in SELF_HIDDEN_SHAPES:
+        return mi.Bool(False)
+    return si.shape == mi.ShapePtr(shape)
