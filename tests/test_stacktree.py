@@ -65,9 +65,9 @@ def test_lane_stack_matches_a_python_stack_when_lanes_diverge():
 
 
 def test_stack_capacity_bounds_a_depth_first_walk():
-    assert stack_capacity(1, 3) == 1
-    assert stack_capacity(6, 3) == 11
-    assert stack_capacity(10, 1) == 1
+    assert stack_capacity(0, 3) == 1
+    assert stack_capacity(4, 3) == 9
+    assert stack_capacity(9, 1) == 1
 
 
 def glass_scene(size=32):
@@ -125,7 +125,7 @@ def test_each_tracer_where_it_belongs():
     assert isinstance(whitted.make_tracer(loaded, wavefront=True), RayTreeTracer)
     # Unbounded depth with two children per glass hit: no stack is enough.
     unbounded = mi.load_dict(integrator(max_depth=-1))
-    assert stack_capacity(256, 2) > MAX_STACK
+    assert stack_capacity(255, 2) > MAX_STACK
     assert isinstance(unbounded.make_tracer(loaded), RayTreeTracer)
 
 

@@ -93,6 +93,14 @@ class HitShader:
         return tuple(component_table(self.scene, kind, component)
                      for kind, component in self.components)
 
+    def spawning_generations(self) -> int:
+        """How many generations (0, 1, ...) can have children: the ones
+        whose ``work`` may spawn."""
+        if not self.fan_out:
+            return 0
+        last = self.settings.max_depth - (2 if self.needs.hittable_emitters else 3)
+        return max(last + 1, 0)
+
     def work(self, generation) -> HitWork:
         """What a hit of ``generation`` computes (an int, or per lane)."""
         depth = self.settings.max_depth

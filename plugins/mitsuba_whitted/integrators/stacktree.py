@@ -10,9 +10,9 @@ the report's scene this is about 1.5 times as fast as the wavefront tracer
 (trees deeper than :data:`MAX_STACK` allows, capturing each generation's
 rays).
 
-The stack holds at most ``1 + (max_depth - 1) x (fan-out - 1)`` rays: a
-pop frees one slot and a hit that can spawn children is at most
-``max_depth - 1`` generations deep.
+The stack holds at most ``1 + G x (fan-out - 1)`` rays, where G is the
+number of generations that may spawn children (``max_depth - 1`` with
+emitters a ray can hit, else ``max_depth - 2``): a pop frees one slot.
 
 Determinism: each lane sums its tree in a fixed order, so the same input
 gives the same bits. The order differs from the wavefront tracer's, so the
@@ -42,9 +42,10 @@ MAX_STACK = 32
 COUNTED = ("reflection", "refraction", "passthrough", "shadow", "refined")
 
 
-def stack_capacity(max_depth: int, fan_out: int) -> int:
-    """Most rays pending at once in a depth-first walk of a ray tree."""
-    return 1 + max(max_depth - 1, 0) * max(fan_out - 1, 0)
+def stack_capacity(spawning_generations: int, fan_out: int) -> int:
+    """Most rays pending at once in a depth-first walk of a ray tree: a pop
+    frees one slot, each generation that spawns adds at most fan-out."""
+    return 1 + spawning_generations * max(fan_out - 1, 0)
 
 
 @dataclass
@@ -86,12 +87,12 @@ class StackTreeTracer(Tracer):
 
     def __init__(self, shader: HitShader, intersect, refiner=None):
         super().__init__(shader, intersect, refiner)
-        self.capacity = stack_capacity(self.settings.max_depth, shader.fan_out)
+        self.capacity = stack_capacity(shader.spawning_generations(), shader.fan_out)
         self._kernel = FrozenKernel(self._trace_kernel, "stack tracer")
 
     @staticmethod
-    def supports(max_depth: int, fan_out: int) -> bool:
-        return stack_capacity(max_depth, fan_out) <= MAX_STACK
+    def supports(shader: HitShader) -> bool:
+        return stack_capacity(shader.spawning_generations(), shader.fan_out) <= MAX_STACK
 
     def trace(self, rays: RayBatch):
         """Radiance and alpha (primary hit) of each camera ray."""

@@ -88,9 +88,9 @@ class WhittedIntegrator(mi.SamplingIntegrator):
          (Default: 64)
      * - wavefront_size
        - |int|
-       - Most rays traced in one wavefront; wider generations are split so
-         memory stays bounded. (Default: 262144: on 2 cores as fast as
-         larger wavefronts, at half the memory of 1048576)
+       - Most camera samples traced in one kernel launch (and, in the
+         wavefront tracer, most rays of one generation); wider batches are
+         split so memory stays bounded. (Default: 262144)
 
     Whitted (1980) ray tracing for any Mitsuba scene. At each hit the
     radiance is the emission, the ambient term, the light of every delta
@@ -102,8 +102,11 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     exact weight. Nothing is chosen at random: the image is a deterministic
     function of the scene (and of ``seed`` for area lights).
 
-    Rays are traced as wavefronts: each generation of the whole image at
-    once, children compacted into the next. Pixels are box filtered over
+    Each camera sample's ray tree is walked depth first inside one frozen
+    kernel, with a small per-lane stack of pending rays; trees too deep for
+    that stack (``max_depth`` -1 or very large with several delta
+    components) are traced as wavefronts instead, one generation at a time.
+    Both give the same image to float rounding. Pixels are box filtered over
     their own area; the film's reconstruction filter is not used.
 
     .. tabs::
@@ -184,7 +187,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         settings = TreeSettings(depth, self.min_throughput, self.hide_emitters,
                                 self.wavefront_size)
         shader = HitShader(scene, needs, settings, lighting)
-        if not wavefront and StackTreeTracer.supports(depth, shader.fan_out):
+        if not wavefront and StackTreeTracer.supports(shader):
             return StackTreeTracer(shader, intersect, refiner)
         return RayTreeTracer(shader, intersect, refiner)
 
