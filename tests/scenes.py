@@ -56,3 +56,13 @@ def floor(y=-1.0, size=4.0, bsdf=None):
 def wall(z=-2.0, size=4.0, bsdf=None):
     transform = mi.ScalarTransform4f().translate([0, 0, z]).scale(size)
     return {"type": "rectangle", "to_world": transform, "bsdf": bsdf or diffuse(0.5, 0.5, 0.5)}
+
+
+def glass_scene(size=48):
+    """A mirror ball, a glass ball, a floor, a small area light and a point light."""
+    mirror_ball = sphere((-0.8, 0, 0), 0.6, {"type": "conductor"})
+    glass = sphere((0.7, 0, 0.3), 0.6, {"type": "dielectric"})
+    lamp = {"type": "sphere", "center": [0, 2, 2], "radius": 0.3,
+            "emitter": {"type": "area", "radiance": rgb(10, 10, 10)}}
+    return scene(floor(), mirror_ball, glass, lamp, point_light((1, 3, 3)),
+                 sensor=camera(origin=(0, 1, 5), size=size))

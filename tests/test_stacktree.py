@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from conftest import assert_finite
-from scenes import camera, floor, integrator, point_light, rgb, scene, sphere
+from scenes import glass_scene, integrator, rgb
 from mitsuba_whitted.integrators.raytree import RayTreeTracer
 from mitsuba_whitted.integrators.stacktree import (MAX_STACK, LaneStack, StackTreeTracer,
                                                    stack_capacity)
@@ -70,15 +70,6 @@ def test_stack_capacity_bounds_a_depth_first_walk():
     assert stack_capacity(9, 1) == 1
 
 
-def glass_scene(size=32):
-    mirror_ball = sphere((-0.8, 0, 0), 0.6, {"type": "conductor"})
-    glass = sphere((0.7, 0, 0.3), 0.6, {"type": "dielectric"})
-    lamp = {"type": "sphere", "center": [0, 2, 2], "radius": 0.3,
-            "emitter": {"type": "area", "radiance": rgb(10, 10, 10)}}
-    return scene(floor(), mirror_ball, glass, lamp, point_light((1, 3, 3)),
-                 sensor=camera(origin=(0, 1, 5), size=size))
-
-
 def _render_both(loaded, whitted):
     """The image and counts of the stack tracer, then of the wavefront
     tracer (which ``capture_rays`` selects)."""
@@ -104,7 +95,7 @@ def test_stack_and_wavefront_tracers_agree(settings):
     """Same trees, summed in another order: float rounding apart, the same
     image, and exactly the same rays."""
     (stack, stack_counts), (wave, wave_counts) = _render_both(
-        mi.load_dict(glass_scene()), mi.load_dict(integrator(**settings)))
+        mi.load_dict(glass_scene(32)), mi.load_dict(integrator(**settings)))
     np.testing.assert_allclose(stack, wave, rtol=1e-5, atol=1e-6)
     assert {k: stack_counts[k] for k in COUNTS} == {k: wave_counts[k] for k in COUNTS}
 

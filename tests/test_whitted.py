@@ -7,7 +7,8 @@ import pytest
 
 import mitsuba_whitted
 from conftest import assert_finite
-from scenes import camera, diffuse, floor, integrator, point_light, rgb, scene, sphere
+from scenes import (camera, diffuse, floor, glass_scene, integrator, point_light, rgb, scene,
+                    sphere)
 
 TINT = (0.8, 0.5, 0.3)
 
@@ -78,15 +79,6 @@ def test_diffuse_point_light_closed_form():
     centre = image.shape[0] // 2
     expected = 0.6 / np.pi * 30.0 / 4.0 ** 2
     np.testing.assert_allclose(image[centre, centre], expected, rtol=2e-3)
-
-
-def glass_scene(size=48):
-    mirror_ball = sphere((-0.8, 0, 0), 0.6, {"type": "conductor"})
-    glass = sphere((0.7, 0, 0.3), 0.6, {"type": "dielectric"})
-    lamp = {"type": "sphere", "center": [0, 2, 2], "radius": 0.3,
-            "emitter": {"type": "area", "radiance": rgb(10, 10, 10)}}
-    return scene(floor(), mirror_ball, glass, lamp, point_light((1, 3, 3)),
-                 sensor=camera(origin=(0, 1, 5), size=size))
 
 
 def test_determinism_bit_for_bit():
