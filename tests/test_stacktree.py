@@ -137,10 +137,10 @@ def test_a_reused_tracer_sees_parameter_updates():
     path = str(ROOT / "scenes" / "cases" / "cylinder.xml")
     loaded = mi.load_file(path, res="32")
     before = np.array(mi.render(loaded))
-    tracer = loaded.integrator()._last_tracer.tracer
+    tracer = loaded.integrator()._last.tracer
     _change_lights_and_colours(loaded)
     reused = np.array(mi.render(loaded))
-    assert loaded.integrator()._last_tracer.tracer is tracer
+    assert loaded.integrator()._last.tracer is tracer
     copy = mi.load_file(path, res="32")
     _change_lights_and_colours(copy)
     fresh = np.array(mi.render(copy))

@@ -139,15 +139,34 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         self._validate()
         #: Called as ``progress(done, expected, message)`` while rendering.
         self.progress = None
-        #: Statistics of the last render (ray counts by kind, AA samples).
-        self.last_stats = {}
-        #: Camera samples per pixel of the last adaptive render (mi.UInt32).
-        self.last_sample_map = None
         #: Set to keep every ray batch of the next render in ``last_rays``.
         self.capture_rays = False
-        self.last_rays = None
-        #: The last render's tracer: see ``_tracer_for``.
-        self._last_tracer = _LastTracer()
+        self._last = _LastRender()
+
+    # What the last render left: kept in a plain object, which Dr.Jit does
+    # not look into when a frozen kernel traverses the scene (and with it
+    # this integrator). Values that change from render to render would
+    # otherwise make it record its kernels again, and the tracer (which
+    # holds the scene) would lead it round a cycle.
+
+    @property
+    def last_stats(self) -> dict:
+        """Statistics of the last render (ray counts by kind, AA samples)."""
+        return self._last.stats
+
+    @property
+    def last_sample_map(self):
+        """Camera samples per pixel of the last adaptive render (mi.UInt32)."""
+        return self._last.sample_map
+
+    @property
+    def last_rays(self):
+        """The ray batches of the last render, if ``capture_rays`` was set."""
+        return self._last.rays
+
+    @last_rays.setter
+    def last_rays(self, value):
+        self._last.rays = value
 
     def _validate(self):
         check(self.max_depth >= -1, PLUGIN_NAME, "max_depth",
@@ -200,11 +219,11 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         arguments either way."""
         needs = analyse(scene)
         built_from = (scene, needs, seed, self.capture_rays, self._parameter_values())
-        if self._last_tracer.built_from == built_from:
-            self._last_tracer.tracer.reload()
-            return self._last_tracer.tracer
+        if self._last.built_from == built_from:
+            self._last.tracer.reload()
+            return self._last.tracer
         tracer = self.make_tracer(scene, seed, wavefront=self.capture_rays, needs=needs)
-        self._last_tracer.keep(built_from, tracer)
+        self._last.built_from, self._last.tracer = built_from, tracer
         return tracer
 
     def _parameter_values(self) -> tuple:
@@ -227,13 +246,13 @@ class WhittedIntegrator(mi.SamplingIntegrator):
             radiance, alpha, count = self._sample_pixels(width, height, shade)
             block = _image_block(film, radiance, alpha, channels)
         film.put_block(block)
-        self.last_stats = tracer.stats.as_dict()
-        self.last_stats["aa_samples"] = count.samples
-        self.last_stats["aa_per_level"] = count.per_level
-        self.last_stats["aa_levels"] = count.levels
-        self.last_stats["aa_budget_hit_at"] = count.budget_hit_at
-        self.last_sample_map = count.per_pixel
-        self.last_rays = tracer.captured
+        stats = tracer.stats.as_dict()
+        stats["aa_samples"] = count.samples
+        stats["aa_per_level"] = count.per_level
+        stats["aa_levels"] = count.levels
+        stats["aa_budget_hit_at"] = count.budget_hit_at
+        self._last.stats, self._last.sample_map = stats, count.per_pixel
+        self._last.rays = tracer.captured
         return film.develop() if develop else mi.TensorXf()
 
     def _sample_pixels(self, width, height, shade):
@@ -301,18 +320,14 @@ class WhittedIntegrator(mi.SamplingIntegrator):
                 f"aa={self.aa}, ambient={list(self.ambient)}]")
 
 
-class _LastTracer:
-    """A tracer and what it was built from. A plain object, which Dr.Jit
-    does not look into when a frozen kernel traverses the scene and with it
-    this integrator (a tuple there would lead back to the scene, a cycle)."""
+class _LastRender:
+    """What the last render left (see the integrator's ``last_*``)."""
 
-    __slots__ = ("built_from", "tracer")
+    __slots__ = ("built_from", "tracer", "stats", "sample_map", "rays")
 
     def __init__(self):
-        self.built_from = self.tracer = None
-
-    def keep(self, built_from: tuple, tracer) -> None:
-        self.built_from, self.tracer = built_from, tracer
+        self.built_from = self.tracer = self.sample_map = self.rays = None
+        self.stats = {}
 
 
 def _require_supported_variant():
