@@ -17,8 +17,8 @@ def test_bench_quick_writes_every_figure(tmp_path):
                             cwd=ROOT)
     assert result.returncode == 0, result.stderr
     figures = json.loads(out.read_text())
-    for key in ("warm_render_s", "first_render_in_process_s", "rays", "rays_per_second",
-                "bound", "fresh_process", "fresh_process_empty_cache", "peak_rss_mib",
+    for key in ("warm_render_s", "first_render_in_process_s", "second_render_in_process_s",
+                "rays", "rays_per_second", "bound", "fresh_process", "fresh_process_empty_cache", "peak_rss_mib",
                 "scaling", "equal_error"):
         assert key in figures, key
     rays = figures["rays"]
