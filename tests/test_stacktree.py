@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from conftest import assert_finite
-from scenes import glass_scene, integrator, rgb
+from scenes import camera, floor, glass_scene, integrator, point_light, rgb, scene, sphere, wall
 from mitsuba_whitted.integrators.raytree import RayTreeTracer
 from mitsuba_whitted.integrators.stacktree import (MAX_STACK, LaneStack, StackTreeTracer,
                                                    stack_capacity)
@@ -146,3 +146,20 @@ def test_a_reused_tracer_sees_parameter_updates():
     fresh = np.array(mi.render(copy))
     assert not np.allclose(reused, before)
     np.testing.assert_array_equal(reused, fresh)
+
+
+def test_tracers_agree_through_pass_through_surfaces():
+    """A checkered mask, a null sphere and glass: straight-through children
+    as well as reflected and refracted ones."""
+    opacity = {"type": "checkerboard", "to_uv": mi.ScalarTransform4f().scale([8, 8, 1])}
+    masked = sphere((0, 0, 0), 0.8, {"type": "mask", "opacity": opacity,
+                                     "bsdf": {"type": "diffuse"}})
+    glass = sphere((0.5, 0.3, 1.2), 0.3, {"type": "dielectric"})
+    null = sphere((-0.7, 0.2, 1.0), 0.3, {"type": "null"})
+    loaded = mi.load_dict(scene(floor(), wall(), masked, glass, null, point_light((1, 3, 3)),
+                                sensor=camera(size=32)))
+    (stack, stack_counts), (wave, wave_counts) = _render_both(
+        loaded, mi.load_dict(integrator(max_depth=8, aa="grid", aa_samples=2)))
+    np.testing.assert_allclose(stack, wave, rtol=1e-5, atol=1e-6)
+    assert {k: stack_counts[k] for k in COUNTS} == {k: wave_counts[k] for k in COUNTS}
+    assert stack_counts["passthrough"] > 0
