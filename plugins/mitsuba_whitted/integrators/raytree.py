@@ -85,15 +85,19 @@ class Tracer:
         #: When a list, every traced batch is appended to it (benchmarks
         #: replay the very same rays through Mitsuba's own ray casting).
         self.captured = None
-        self.reload()
+        self._start()
 
     def reload(self) -> None:
-        """Fresh statistics, and the tables the kernels read besides the
-        scene and the rays (shape placements may have changed since the
-        last render; frozen kernels take them as arguments)."""
-        self.stats = RayStats()
+        """Ready for another render: shape placements may have changed
+        since the last one (frozen kernels take the tables as arguments)."""
         if self.refiner is not None:
             self.refiner.load_tables()
+        self._start()
+
+    def _start(self) -> None:
+        """Fresh statistics, and the tables the kernels read besides the
+        scene and the rays."""
+        self.stats = RayStats()
         self._kernel_inputs = (self.refiner.tables() if self.refiner is not None else (),
                                self.shader.tables())
 
@@ -136,10 +140,9 @@ class RayTreeTracer(Tracer):
         work = self.shader.work(generation)
         if not work.any() and generation > 0:
             return dr.zeros(mi.Color3f, len(rays)), None, None, None
-        flags = (work.emit, work.light, work.spawn)
-        if flags not in self._generation:
-            self._generation[flags] = FrozenKernel(self._kernel_doing(work), "wavefront tracer")
-        local, alpha, shadow, refined, candidates = self._generation[flags](
+        if work not in self._generation:
+            self._generation[work] = FrozenKernel(self._kernel_doing(work), "wavefront tracer")
+        local, alpha, shadow, refined, candidates = self._generation[work](
             len(rays), self.shader.scene, self._kernel_inputs, *rays.fields())
         local = dr.zeros(mi.Color3f, len(rays)) if local is None else local
         if shadow is not None:

@@ -29,10 +29,10 @@ class TreeSettings:
     wavefront_size: int
 
 
-@dataclass
+@dataclass(frozen=True)
 class HitWork:
     """What a hit computes: each is ``False`` (left out of the kernel),
-    ``True`` or a per-lane mask."""
+    ``True`` or a per-lane mask. With Python flags it serves as a key."""
     emit: object = False
     light: object = False
     spawn: object = False
@@ -96,10 +96,8 @@ class HitShader:
     def spawning_generations(self) -> int:
         """How many generations (0, 1, ...) can have children: the ones
         whose ``work`` may spawn."""
-        if not self.fan_out:
-            return 0
-        last = self.settings.max_depth - (2 if self.needs.hittable_emitters else 3)
-        return max(last + 1, 0)
+        return sum(1 for generation in range(self.settings.max_depth)
+                   if self.work(generation).spawn)
 
     def work(self, generation) -> HitWork:
         """What a hit of ``generation`` computes (an int, or per lane)."""

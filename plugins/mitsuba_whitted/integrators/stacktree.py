@@ -60,10 +60,6 @@ class LaneStack:
     def allocate(cls, types: tuple, capacity: int) -> "LaneStack":
         return cls([dr.alloc_local(kind, capacity) for kind in types])
 
-    @property
-    def capacity(self) -> int:
-        return len(self.slots[0])
-
     def push(self, size: mi.UInt32, values: tuple, active: mi.Bool) -> mi.UInt32:
         """Store ``values`` on top where ``active``; the new size."""
         for slot, value in zip(self.slots, values):
@@ -110,8 +106,8 @@ class StackTreeTracer(Tracer):
     def _trace_kernel(self, scene, inputs, o, d, throughput, key):
         """Radiance, alpha, per-lane ray counts by kind and the deepest
         generation of each lane's tree."""
-        stack = LaneStack.allocate((mi.Point3f, mi.Vector3f, mi.Color3f, mi.UInt32, mi.UInt32),
-                          self.capacity)
+        stack = LaneStack.allocate(
+            (mi.Point3f, mi.Vector3f, mi.Color3f, mi.UInt32, mi.UInt32), self.capacity)
         size = stack.push(mi.UInt32(0), (o, d, throughput, key, mi.UInt32(0)), mi.Bool(True))
         radiance = mi.Color3f(0)
         alpha = mi.Float(0)
