@@ -33,23 +33,14 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from .jit import timed
+
 DEFAULT_SCENE = Path(__file__).resolve().parents[2] / "scenes" / "cosc363.xml"
 
 
 def peak_rss_mib() -> float:
     """Peak resident memory of this process so far (Linux reports KiB)."""
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-
-
-def timed(function, repeats: int) -> list[float]:
-    """Wall times of ``repeats`` calls, each synchronised with the device."""
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        function()
-        dr.sync_thread()
-        times.append(time.perf_counter() - start)
-    return times
 
 
 @dataclass
@@ -69,8 +60,7 @@ def time_render(scene: mi.Scene, integrator, repeats: int) -> RenderTiming:
     def render():
         mi.render(scene, integrator=integrator)
 
-    first, second = timed(render, 1)[0], timed(render, 1)[0]
-    warm = timed(render, repeats)
+    (first, second), warm = timed(render, 2)[1], timed(render, repeats)[1]
     return RenderTiming(first, second, statistics.median(warm), warm,
                         dict(integrator.last_stats))
 
@@ -139,8 +129,8 @@ def ray_casting_bound(scene: mi.Scene, batches, emitter_samples: int, repeats: i
 
     timed(intersect, 1), timed(test, 1)  # compile
     return Bound(dr.width(o), dr.width(shadow.o),
-                 statistics.median(timed(intersect, repeats)),
-                 statistics.median(timed(test, repeats)))
+                 statistics.median(timed(intersect, repeats)[1]),
+                 statistics.median(timed(test, repeats)[1]))
 
 
 # -------------------------------------------------------- fresh processes

@@ -7,6 +7,8 @@ every new value would compile a new kernel.
 
 from __future__ import annotations
 
+import time
+
 import drjit as dr
 import mitsuba as mi
 
@@ -34,3 +36,16 @@ def sum_blocks(values, block: int):
 def to_int(value) -> int:
     """A count kept lazily on the device (size-1 array) or on the host."""
     return int(value[0]) if dr.is_array_v(value) else int(value)
+
+
+def timed(function, repeats: int):
+    """The last result of ``repeats`` calls of ``function`` and the wall time
+    of each call; the clock stops only after ``dr.sync_thread()``, since a
+    call may return before the work it launched has run."""
+    result, times = None, []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        result = function()
+        dr.sync_thread()
+        times.append(time.perf_counter() - start)
+    return result, times

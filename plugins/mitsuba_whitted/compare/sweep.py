@@ -11,13 +11,12 @@ from __future__ import annotations
 
 import math
 import statistics
-import time
 from dataclasses import dataclass, field
 
-import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ..jit import timed
 from .metrics import flip_error, rel_mse, rmse
 from .reference import Reference, path_settings, rgb
 
@@ -42,14 +41,11 @@ class SweepPoint:
 
 def timed_render(scene: mi.Scene, integrator, repeats: int = 3, **render_args):
     """(image, first render's seconds, median of ``repeats`` warm renders)."""
-    def once():
-        started = time.perf_counter()
-        image = mi.render(scene, integrator=integrator, **render_args)
-        dr.sync_thread()
-        return image, time.perf_counter() - started
+    def render():
+        return mi.render(scene, integrator=integrator, **render_args)
 
-    image, first = once()
-    warm = [once()[1] for _ in range(repeats)]
+    image, (first,) = timed(render, 1)
+    _, warm = timed(render, repeats)
     return rgb(image), first, statistics.median(warm)
 
 
