@@ -9,7 +9,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from mitsuba_whitted.mathutil import (difference_of_products, inverse_condition,
+from mitsuba_whitted.mathutil import (difference_of_products, hammersley, inverse_condition,
                                       invert_affine_f64, solve_quadratic)
 
 FLOAT32_ULP = 2.0 ** -23  # spacing of float32 numbers in [1, 2)
@@ -133,3 +133,23 @@ def test_invert_affine_f64_rejects_bad_matrices():
     projective[3, 2] = 1
     with pytest.raises(ValueError):
         invert_affine_f64(projective)
+
+
+@pytest.mark.parametrize("m", [0, 1, 4, 6, 8])
+def test_hammersley_is_a_net_in_base_two(m):
+    """2^m points: every dyadic box of area 2^-m (any split 2^a x 2^(m-a))
+    holds exactly one point, the (0, m, 2)-net property."""
+    points = hammersley(1 << m)
+    assert points.shape == (1 << m, 2)
+    assert ((points > 0) & (points < 1)).all()
+    for a in range(m + 1):
+        columns = np.floor(points[:, 0] * (1 << a)).astype(int)
+        rows = np.floor(points[:, 1] * (1 << (m - a))).astype(int)
+        boxes = columns * (1 << (m - a)) + rows
+        assert np.array_equal(np.sort(boxes), np.arange(1 << m))
+
+
+def test_hammersley_of_any_count_has_one_point_per_column():
+    points = hammersley(100)
+    assert np.array_equal(np.sort(np.floor(points[:, 0] * 100).astype(int)), np.arange(100))
+    assert len(np.unique(points[:, 1])) == 100

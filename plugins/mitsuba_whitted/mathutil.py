@@ -97,3 +97,24 @@ def invert_affine_f64(matrix) -> np.ndarray:
     inverse[:3, :3] = np.linalg.inv(linear)
     inverse[:3, 3] = -inverse[:3, :3] @ m[:3, 3]
     return inverse
+
+
+def hammersley(count: int) -> np.ndarray:
+    """``count`` points of the Hammersley set in the unit square, shape
+    ``(count, 2)``, float64: ``x`` at the centres of ``count`` equal columns,
+    ``y`` the base-2 radical inverse of the index, moved to the centre of
+    its dyadic interval.
+
+    Every column and every dyadic row holds one point, so an axis-aligned
+    edge is resolved to 1/``count`` of the square (a ``n x n`` grid of the
+    same count only to 1/``n``), and any straight edge converges faster than
+    on a grid or with independent random points.
+    """
+    index = np.arange(count, dtype=np.uint64)
+    bits = int(count - 1).bit_length()
+    reversed_index = np.zeros(count, dtype=np.uint64)
+    for bit in range(bits):
+        reversed_index |= ((index >> np.uint64(bit)) & np.uint64(1)) << np.uint64(bits - 1 - bit)
+    x = (index + 0.5) / count
+    y = (reversed_index + 0.5) / float(1 << bits)
+    return np.stack([x, y], axis=1)

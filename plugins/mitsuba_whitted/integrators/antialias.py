@@ -1,5 +1,5 @@
-"""Pixel sampling patterns: pixel centres, n x n grids and the report's
-adaptive 4-way subdivision.
+"""Pixel sampling patterns: pixel centres, n x n grids, the report's
+adaptive 4-way subdivision and contrast-driven supersampling.
 
 Every pattern is deterministic and every reduction has a fixed order, so the
 same scene always gives the same image bit for bit: samples of one pixel (or
@@ -14,6 +14,16 @@ compares displayable colours) becomes a cell of its own and is sampled again
 at the centres of its four quadrants, up to ``max_depth`` levels. A leaf at
 level L covers 4^-(L+1) of its pixel, so each cell's value is the mean of its
 four quadrants, computed bottom-up.
+
+Contrast-driven supersampling (Mitchell 1987): every pixel centre is traced
+first. A pixel whose 3 x 3 neighbourhood of centre samples has a contrast
+``(max - min) / (max + min)`` above ``threshold`` in some channel (R, G, B or
+alpha) is traced again with ``n^2`` points of the Hammersley set and takes
+their mean. Looking at the neighbours finds edges that pass between sample
+points, which the report's per-pixel rule cannot see (its error stops
+falling however deep it goes), and the Hammersley points resolve an edge
+far finer than a grid of the same count: where aliasing is the only error,
+this converges much faster than either.
 """
 
 from __future__ import annotations
@@ -25,6 +35,7 @@ import drjit as dr
 import mitsuba as mi
 
 from ..jit import index_range, opaque_float, sum_blocks
+from ..mathutil import hammersley
 
 #: Quadrant centres of the unit cell, in the order children are stored.
 QUADRANTS = ((0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75))
@@ -147,3 +158,85 @@ class AdaptiveSampler:
                 dr.scatter(alpha, mean_alpha, cells)
             child_radiance, child_alpha = radiance, alpha
         return sum_blocks(child_radiance, 4) * 0.25, sum_blocks(child_alpha, 4) * 0.25
+
+
+def neighbourhood_contrast(radiance: mi.Color3f, alpha: mi.Float, width: int,
+                           height: int) -> mi.Float:
+    """Per pixel (row-major): the largest contrast ``(max - min) / (max + min)``
+    over the channels R, G, B and alpha of the pixel and its 8 neighbours
+    (those inside the image). 0 where a channel is 0 throughout."""
+    index = dr.arange(mi.Int32, width * height)
+    x, y = index % width, index // width
+    channels = (radiance.x, radiance.y, radiance.z, alpha)
+    high, low = list(channels), list(channels)
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            neighbour = (dr.clip(y + dy, 0, height - 1) * width
+                         + dr.clip(x + dx, 0, width - 1))
+            for c, values in enumerate(channels):
+                value = dr.gather(mi.Float, values, mi.UInt32(neighbour))
+                high[c], low[c] = dr.maximum(high[c], value), dr.minimum(low[c], value)
+    contrast = mi.Float(0)
+    for hi, lo in zip(high, low):
+        spread = hi + lo
+        contrast = dr.maximum(contrast, dr.select(spread > 0, (hi - lo) / spread, 0))
+    return contrast
+
+
+class ContrastSampler:
+    """Mitchell's contrast-driven supersampling: pixel centres, then
+    ``samples_per_side^2`` Hammersley points in every pixel whose
+    neighbourhood contrast passes ``threshold``."""
+
+    def __init__(self, threshold: float, samples_per_side: int, budget_spp: float,
+                 warn: Callable[[str], None]):
+        self.threshold = threshold
+        self.samples = samples_per_side * samples_per_side
+        self.budget_spp = budget_spp
+        self.warn = warn
+
+    def render(self, width: int, height: int, shade: ShadeFn):
+        pixels = width * height
+        radiance, alpha = shade(_grid_positions(width, height, 1),
+                                dr.arange(mi.UInt32, pixels))
+        count = SampleCount(pixels, 0, (pixels,), per_pixel=dr.full(mi.UInt32, 1, pixels))
+        contrast = neighbourhood_contrast(radiance, alpha, width, height)
+        refined = dr.compress(contrast > self.threshold)
+        if dr.width(refined) == 0:
+            return radiance, alpha, count
+        samples = self._samples_within_budget(dr.width(refined), pixels)
+        positions = _pattern_positions(refined, width, samples)
+        keys = index_range(pixels, pixels + dr.width(positions))
+        fine_radiance, fine_alpha = shade(positions, keys)
+        scale = 1.0 / samples
+        dr.scatter(radiance, sum_blocks(fine_radiance, samples) * scale, refined)
+        dr.scatter(alpha, sum_blocks(fine_alpha, samples) * scale, refined)
+        dr.scatter(count.per_pixel, mi.UInt32(1 + samples), refined)
+        count.samples += dr.width(positions)
+        count.per_level += (dr.width(positions),)
+        count.levels = 1
+        return radiance, alpha, count
+
+    def _samples_within_budget(self, refined: int, pixels: int) -> int:
+        """Points per refined pixel: as asked, or fewer (with a warning)
+        where that would pass the budget of samples per pixel."""
+        allowed = int((self.budget_spp * pixels - pixels) // refined)
+        if allowed >= self.samples:
+            return self.samples
+        samples = max(allowed, 1)
+        self.warn(
+            f"whitted: contrast anti-aliasing refines {refined} pixels with {samples} "
+            f"samples each instead of {self.samples}: more would pass the budget of "
+            f"{self.budget_spp:g} samples per pixel ('aa_budget'); raise 'aa_budget' or "
+            "'aa_threshold'.")
+        return samples
+
+
+def _pattern_positions(pixels: mi.UInt32, width: int, samples: int) -> mi.Point2f:
+    """``samples`` Hammersley points in each of ``pixels``, pixel-major."""
+    pattern = hammersley(samples)
+    offsets = mi.Vector2f(mi.Float(pattern[:, 0]), mi.Float(pattern[:, 1]))
+    index = dr.arange(mi.UInt32, dr.width(pixels) * samples)
+    pixel = dr.gather(mi.UInt32, pixels, index // samples)
+    corner = mi.Point2f(mi.Float(pixel % width), mi.Float(pixel // width))
+    return mi.Point2f(corner + dr.gather(mi.Vector2f, offsets, index % samples))

@@ -16,7 +16,7 @@ from .scene_needs import SceneNeeds, analyse
 
 PLUGIN_NAME = "whitted"
 
-AA_MODES = ("none", "grid", "adaptive")
+AA_MODES = ("none", "grid", "adaptive", "contrast")
 SHADOW_MODES = ("physical", "seed")
 #: ``max_depth = -1`` means "until pruned"; this cap keeps two facing
 #: perfect mirrors from looping forever.
@@ -66,26 +66,32 @@ class WhittedIntegrator(mi.SamplingIntegrator):
      * - aa
        - |string|
        - Anti-aliasing: ``"none"`` (pixel centres), ``"grid"``
-         (``aa_samples`` x ``aa_samples`` stratified samples) or
-         ``"adaptive"`` (the report's recursive four-way split).
-         (Default: none)
+         (``aa_samples`` x ``aa_samples`` stratified samples),
+         ``"adaptive"`` (the report's recursive four-way split) or
+         ``"contrast"`` (pixel centres, then ``aa_samples``\ :sup:`2`
+         Hammersley points in each pixel whose neighbourhood contrast is
+         high, after Mitchell 1987). (Default: none)
      * - aa_samples
        - |int|
-       - Grid resolution per pixel for ``aa = "grid"``. (Default: 2)
+       - Grid: samples per pixel side. Contrast: a refined pixel takes
+         ``aa_samples``\ :sup:`2` points. (Default: 2)
      * - aa_threshold
        - |float|
        - Adaptive: a quadrant is split when its colour (clamped to [0, 1])
          differs from the mean of its siblings by more than this in some
-         channel. (Default: 0.1)
+         channel. Contrast: a pixel is refined when, in some channel
+         (R, G, B, alpha), ``(max - min) / (max + min)`` over it and its
+         8 neighbours is above this. (Default: 0.1)
      * - aa_max_depth
        - |int|
        - Adaptive: levels of splitting below the first four samples,
          0 to 16. (Default: 3)
      * - aa_budget
        - |float|
-       - Adaptive: most camera samples per pixel, on average over the image.
-         Refinement stops with a warning where a level would pass it.
-         (Default: 64)
+       - Adaptive and contrast: most camera samples per pixel, on average
+         over the image. Adaptive refinement stops with a warning where a
+         level would pass it; contrast refinement takes fewer points per
+         pixel, with a warning. (Default: 64)
      * - wavefront_size
        - |int|
        - Most camera samples traced in one kernel launch (and, in the
@@ -258,6 +264,10 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     def _sample_pixels(self, width, height, shade):
         if self.aa == "adaptive":
             sampler = antialias.AdaptiveSampler(self.aa_threshold, self.aa_max_depth,
+                                                self.aa_budget, _warn)
+            return sampler.render(width, height, shade)
+        if self.aa == "contrast":
+            sampler = antialias.ContrastSampler(self.aa_threshold, self.aa_samples,
                                                 self.aa_budget, _warn)
             return sampler.render(width, height, shade)
         n = self.aa_samples if self.aa == "grid" else 1
