@@ -34,6 +34,7 @@ import mitsuba as mi
 import numpy as np
 
 from .jit import timed
+from .compare.sweep import RELATION_PREFIX, speedup_text
 
 DEFAULT_SCENE = Path(__file__).resolve().parents[2] / "scenes" / "cosc363.xml"
 
@@ -227,21 +228,33 @@ def fresnel_scene(resolution: int) -> dict:
     }
 
 
+def equal_error_settings() -> dict:
+    """Labelled Whitted settings for the equal-error comparison: n x n grids
+    (n = 1, 2, 4, 8), and contrast-driven refinement with 64 and 256 points
+    per edge pixel, also with a coarser ray-tree pruning (``min_throughput``
+    1e-2: a branch carrying under 1% is left out)."""
+    settings = {f"whitted grid {n}x{n}": {"aa": "grid", "aa_samples": n} for n in (1, 2, 4, 8)}
+    for n in (8, 16):
+        for pruning in (1e-4, 1e-2):
+            settings[f"whitted contrast {n}x{n}, min_throughput {pruning:g}"] = {
+                "aa": "contrast", "aa_samples": n, "aa_threshold": 0.02,
+                "min_throughput": pruning, "aa_budget": 256}
+    return {label: {"max_depth": 12, **values} for label, values in settings.items()}
+
+
 def equal_error_speedup(resolution: int, reference_spp: int, largest_spp: int,
                         repeats: int) -> dict:
     """Time ``path`` needs to match Whitted's error on ``fresnel_scene``,
     over Whitted's time (both warm, against one converged reference), for
-    Whitted with 1, 2, 4 and 8 samples per pixel side: its only error is
-    aliasing, which finer grids shrink, while path's is noise. The
+    Whitted's anti-aliasing settings (:func:`equal_error_settings`): its
+    only error is aliasing, which they shrink, while path's is noise. The
     headline is the best of these settings."""
     from .compare import noise_rel_mse, path_spp_ladder, render_reference, run_sweep, speedups
 
     scene = mi.load_dict(fresnel_scene(resolution))
-    grids = {f"whitted grid {n}x{n}": {"max_depth": 12, "aa": "grid", "aa_samples": n}
-             for n in (1, 2, 4, 8)}
     reference = render_reference(scene, reference_spp)
-    points = run_sweep(scene, reference, grids, path_spp_ladder(largest_spp), repeats,
-                       path_depth=12)
+    points = run_sweep(scene, reference, equal_error_settings(), path_spp_ladder(largest_spp),
+                       repeats, path_depth=12)
     rows = [{"whitted": s.point.label, "whitted_rel_mse": s.point.rel_mse,
              "whitted_seconds": s.point.seconds, "path_spp": s.path.spp,
              "path_seconds": s.path.seconds, "relation": s.path.relation,
@@ -366,10 +379,15 @@ def format_table(results: dict) -> str:
         lines.append(f"    {row['parameter']:>12} = {str(row['value']):>5}  {row['seconds']:8.3f} s"
                      f"  {row['rays']:>12,} rays  {row['rays_per_second'] / 1e6:6.2f} M rays/s")
     eq = results["equal_error"]
-    relation = {"=": "", "<": "< ", ">": "> "}[eq["relation"]]
+    relation = RELATION_PREFIX[eq["relation"]]
     lines.append(f"  equal-error speed-up over path: {relation}{eq['speedup']:.2g}x on {eq['scene']}"
                  f" at {eq['resolution']}^2, {eq['whitted']} (relMSE {eq['whitted_rel_mse']:.2e} in "
                  f"{eq['whitted_seconds']:.3f} s; path needs {relation}{eq['path_spp']:.0f} spp, "
                  f"{eq['path_seconds']:.3f} s; reference {eq['reference_spp']} spp, its own noise "
                  f"relMSE {eq['reference_noise_rel_mse']:.1e})")
+    for row in eq["settings"]:
+        lines.append(f"    {row['whitted']:<46} relMSE {row['whitted_rel_mse']:.2e} "
+                     f"{row['whitted_seconds']:7.3f} s  path "
+                     f"{RELATION_PREFIX[row['relation']]}{row['path_spp']:.0f} spp "
+                     f"{row['path_seconds']:7.3f} s  {speedup_text(row['speedup'], row['relation'])}")
     return "\n".join(lines)

@@ -63,7 +63,8 @@ def scene_whitted_settings(scene: mi.Scene) -> dict:
 
 def whitted_variants(base: dict, quick: bool = False) -> dict:
     """Labelled Whitted settings around ``base``: its AA modes, adaptive
-    thresholds and depths, and the physical model when ``base`` differs."""
+    thresholds, contrast refinement and depths, and the physical model when
+    ``base`` differs."""
     # Three adaptive levels resolve edges to 1/16 pixel; deeper levels on a
     # low threshold would mostly spend the sample budget on noise.
     depth = min(base.get("aa_max_depth", 3), 3)
@@ -75,6 +76,8 @@ def whitted_variants(base: dict, quick: bool = False) -> dict:
         variants.update({
             "aa grid 4x4": {"aa": "grid", "aa_samples": 4},
             "aa adaptive 0.05": {"aa": "adaptive", "aa_threshold": 0.05, "aa_max_depth": depth},
+            "aa contrast 8x8": {"aa": "contrast", "aa_samples": 8, "aa_threshold": 0.02,
+                                "aa_budget": 256},
             "max_depth 2": {"aa": "none", "max_depth": 2},
             "max_depth 4": {"aa": "none", "max_depth": 4},
         })
@@ -168,9 +171,13 @@ class Speedup:
         return self.path.seconds / self.point.seconds
 
 
+#: How an equal-error figure is written: exact, or a bound.
+RELATION_PREFIX = {"=": "", "<": "< ", ">": "> "}
+
+
 def speedup_text(factor: float, relation: str) -> str:
     """A speed-up factor, with ``<``/``>`` when it is a bound."""
-    return f"{ {'=': '', '<': '< ', '>': '> '}[relation]}{factor:.3g}x"
+    return f"{RELATION_PREFIX[relation]}{factor:.3g}x"
 
 
 def speedups(points: list[SweepPoint]) -> list[Speedup]:
