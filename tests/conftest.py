@@ -1,7 +1,5 @@
 """Shared fixtures: every test runs in the JIT variant the package targets."""
 
-import drjit as dr
-import mitsuba as mi
 import pytest
 
 import mitsuba_whitted

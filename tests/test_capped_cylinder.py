@@ -21,7 +21,6 @@ Tolerances (canonical space, where the cylinder has radius 1 and height 1):
 
 from __future__ import annotations
 
-import drjit as dr
 import mitsuba as mi
 import numpy as np
 import pytest

@@ -6,7 +6,6 @@ the equivalence verdicts, and the files on disk for the cache.
 """
 
 import json
-import math
 import re
 import subprocess
 import sys

@@ -5,7 +5,6 @@ caps placed on the same solid, intersected by Mitsuba itself on the very
 same pixel-centre rays.
 """
 
-import drjit as dr
 import mitsuba as mi
 import numpy as np
 import pytest

@@ -8,7 +8,6 @@ that it does reject a scene where Whitted is known to be wrong.
 
 import mitsuba as mi
 import numpy as np
-import pytest
 
 from mitsuba_whitted.camera import camera_rays, pixel_centres
 from mitsuba_whitted.compare import (equivalence_test, path_batches, pixel_centre_equivalence,

@@ -4,7 +4,6 @@ and numpy float64."""
 from decimal import Decimal, getcontext
 from fractions import Fraction
 
-import drjit as dr
 import mitsuba as mi
 import numpy as np
 import pytest
