@@ -208,6 +208,11 @@ def scaling_table(scene_path: Path, base: dict, sweeps: dict, repeats: int) -> l
 # -------------------------------------------------------------- equal error
 
 
+#: Longest path of every render in the equal-error comparison (the
+#: reference's too, so that all of them model the same light).
+EQUAL_ERROR_DEPTH = 12
+
+
 def fresnel_scene(resolution: int) -> dict:
     """An equivalence scene: a glass sphere before an emitting checkerboard.
     Every path of light is a chain of Fresnel reflections and refractions,
@@ -231,15 +236,16 @@ def fresnel_scene(resolution: int) -> dict:
 def equal_error_settings() -> dict:
     """Labelled Whitted settings for the equal-error comparison: n x n grids
     (n = 1, 2, 4, 8), and contrast-driven refinement with 64 and 256 points
-    per edge pixel, also with a coarser ray-tree pruning (``min_throughput``
-    1e-2: a branch carrying under 1% is left out)."""
+    per edge pixel, each with the default ray-tree pruning and coarser ones
+    (``min_throughput`` 1e-3 and 1e-2: branches carrying under 0.1% or 1%
+    are left out)."""
     settings = {f"whitted grid {n}x{n}": {"aa": "grid", "aa_samples": n} for n in (1, 2, 4, 8)}
     for n in (8, 16):
-        for pruning in (1e-4, 1e-2):
+        for pruning in (1e-4, 1e-3, 1e-2):
             settings[f"whitted contrast {n}x{n}, min_throughput {pruning:g}"] = {
                 "aa": "contrast", "aa_samples": n, "aa_threshold": 0.02,
                 "min_throughput": pruning, "aa_budget": 256}
-    return {label: {"max_depth": 12, **values} for label, values in settings.items()}
+    return {label: {"max_depth": EQUAL_ERROR_DEPTH, **values} for label, values in settings.items()}
 
 
 def equal_error_speedup(resolution: int, reference_spp: int, largest_spp: int,
@@ -249,12 +255,14 @@ def equal_error_speedup(resolution: int, reference_spp: int, largest_spp: int,
     Whitted's anti-aliasing settings (:func:`equal_error_settings`): its
     only error is aliasing, which they shrink, while path's is noise. The
     headline is the best of these settings."""
-    from .compare import noise_rel_mse, path_spp_ladder, render_reference, run_sweep, speedups
+    from .compare import (noise_rel_mse, path_settings, path_spp_ladder, render_reference,
+                          run_sweep, speedups)
 
     scene = mi.load_dict(fresnel_scene(resolution))
-    reference = render_reference(scene, reference_spp)
+    reference = render_reference(scene, reference_spp,
+                                 settings=path_settings(EQUAL_ERROR_DEPTH))
     points = run_sweep(scene, reference, equal_error_settings(), path_spp_ladder(largest_spp),
-                       repeats, path_depth=12)
+                       repeats, path_depth=EQUAL_ERROR_DEPTH)
     rows = [{"whitted": s.point.label, "whitted_rel_mse": s.point.rel_mse,
              "whitted_seconds": s.point.seconds, "path_spp": s.path.spp,
              "path_seconds": s.path.seconds, "relation": s.path.relation,
@@ -279,8 +287,10 @@ class BenchSettings:
     aa_depths: tuple = (0, 2, 5, 10)
     memory_resolutions: tuple = (600, 2048)
     fresh_processes: bool = True
-    #: Equal-error scene: resolution, reference spp, largest path spp.
-    equal_error: tuple = (128, 16384, 4096)
+    #: Equal-error scene: resolution, reference spp, largest path spp. The
+    #: reference's own noise (relMSE about 2e-6) stays below every error
+    #: compared, and path's ladder reaches past Whitted's best settings.
+    equal_error: tuple = (128, 65536, 16384)
 
     @classmethod
     def quick(cls, scene: Path = DEFAULT_SCENE, defines=None) -> "BenchSettings":

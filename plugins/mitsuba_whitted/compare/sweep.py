@@ -39,13 +39,19 @@ class SweepPoint:
     flip: float = math.nan
 
 
+#: A render that takes longer than this is timed warm once instead of
+#: ``repeats`` times: its run-to-run noise is small next to its length.
+LONG_RENDER_S = 5.0
+
+
 def timed_render(scene: mi.Scene, integrator, repeats: int = 3, **render_args):
-    """(image, first render's seconds, median of ``repeats`` warm renders)."""
+    """(image, first render's seconds, median of ``repeats`` warm renders,
+    or of one where the first took longer than :data:`LONG_RENDER_S`)."""
     def render():
         return mi.render(scene, integrator=integrator, **render_args)
 
     image, (first,) = timed(render, 1)
-    _, warm = timed(render, repeats)
+    _, warm = timed(render, 1 if first > LONG_RENDER_S else repeats)
     return rgb(image), first, statistics.median(warm)
 
 
