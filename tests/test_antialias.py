@@ -103,19 +103,26 @@ def test_grid_is_the_mean_of_its_samples():
     np.testing.assert_array_equal(image[:, 3:], 0.0)
 
 
-def test_adaptive_render_of_a_scene_refines_only_silhouettes():
-    """An emitting square on black: refinement only along its border."""
+def render_emitting_square(**settings):
+    """An emitting square on black, 20 x 20 pixels: (scene, integrator,
+    image, camera samples per pixel)."""
     square = {"type": "rectangle", "to_world": mi.ScalarTransform4f().scale(0.8),
               "emitter": {"type": "area", "radiance": rgb(1, 1, 1)}}
     loaded = mi.load_dict(scene(square, sensor=camera(size=20, fov=30)))
-    whitted = mi.load_dict(integrator(aa="adaptive", aa_max_depth=3, aa_threshold=0.25))
+    whitted = mi.load_dict(integrator(**settings))
     image = np.array(mi.render(loaded, integrator=whitted))
     assert_finite(image)
-    samples = np.array(whitted.last_sample_map).reshape(20, 20)
+    assert whitted.last_stats["aa_samples"] == np.array(whitted.last_sample_map).sum()
+    return loaded, whitted, image, np.array(whitted.last_sample_map).reshape(20, 20)
+
+
+def test_adaptive_render_of_a_scene_refines_only_silhouettes():
+    """An emitting square on black: refinement only along its border."""
+    _, _, image, samples = render_emitting_square(aa="adaptive", aa_max_depth=3,
+                                                  aa_threshold=0.25)
     flat = (image.max(axis=2) == 0) | (image.min(axis=2) == 1)
     assert (samples[flat] == 4).all()
     assert (samples[~flat] > 4).all()
-    assert whitted.last_stats["aa_samples"] == samples.sum()
 
 
 def test_budget_warning_reaches_the_render():
@@ -253,15 +260,9 @@ def test_contrast_budget_takes_fewer_points_with_a_warning():
 def test_contrast_render_of_a_scene_refines_only_silhouettes():
     """An emitting square on black: flat pixels away from its border keep
     their single centre sample; the same render twice is bit-identical."""
-    square = {"type": "rectangle", "to_world": mi.ScalarTransform4f().scale(0.8),
-              "emitter": {"type": "area", "radiance": rgb(1, 1, 1)}}
-    loaded = mi.load_dict(scene(square, sensor=camera(size=20, fov=30)))
-    whitted = mi.load_dict(integrator(aa="contrast", aa_samples=4, aa_threshold=0.1))
-    image = np.array(mi.render(loaded, integrator=whitted))
-    assert_finite(image)
-    samples = np.array(whitted.last_sample_map).reshape(20, 20)
+    loaded, whitted, image, samples = render_emitting_square(aa="contrast", aa_samples=4,
+                                                             aa_threshold=0.1)
     partial = (image.max(axis=2) > 0) & (image.min(axis=2) < 1)
     assert (samples[partial] == 17).all()
     assert (samples[0] == 1).all() and samples[10, 10] == 1
-    assert whitted.last_stats["aa_samples"] == samples.sum()
     np.testing.assert_array_equal(image, np.array(mi.render(loaded, integrator=whitted)))
