@@ -104,9 +104,10 @@ def test_grid_is_the_mean_of_its_samples():
 
 
 def render_emitting_square(**settings):
-    """An emitting square on black, 20 x 20 pixels: (scene, integrator,
-    image, camera samples per pixel)."""
-    square = {"type": "rectangle", "to_world": mi.ScalarTransform4f().scale(0.8),
+    """An emitting square on black, 20 x 20 pixels, its edges 0.4 of a pixel
+    into the border pixels: (scene, integrator, image, camera samples per
+    pixel)."""
+    square = {"type": "rectangle", "to_world": mi.ScalarTransform4f().scale(0.75),
               "emitter": {"type": "area", "radiance": rgb(1, 1, 1)}}
     loaded = mi.load_dict(scene(square, sensor=camera(size=20, fov=30)))
     whitted = mi.load_dict(integrator(**settings))
@@ -121,6 +122,7 @@ def test_adaptive_render_of_a_scene_refines_only_silhouettes():
     _, _, image, samples = render_emitting_square(aa="adaptive", aa_max_depth=3,
                                                   aa_threshold=0.25)
     flat = (image.max(axis=2) == 0) | (image.min(axis=2) == 1)
+    assert 0 < (~flat).sum() < 100
     assert (samples[flat] == 4).all()
     assert (samples[~flat] > 4).all()
 
@@ -263,6 +265,7 @@ def test_contrast_render_of_a_scene_refines_only_silhouettes():
     loaded, whitted, image, samples = render_emitting_square(aa="contrast", aa_samples=4,
                                                              aa_threshold=0.1)
     partial = (image.max(axis=2) > 0) & (image.min(axis=2) < 1)
+    assert 0 < partial.sum() < 100
     assert (samples[partial] == 17).all()
     assert (samples[0] == 1).all() and samples[10, 10] == 1
     np.testing.assert_array_equal(image, np.array(mi.render(loaded, integrator=whitted)))
