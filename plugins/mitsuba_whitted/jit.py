@@ -24,13 +24,12 @@ def opaque_float(value: float) -> "mi.Float":
 
 def sum_blocks(values, block: int):
     """Sum of each run of ``block`` consecutive entries, in a fixed order
-    (deterministic, unlike atomic scatter-adds)."""
-    count = dr.width(values) // block
-    base = dr.arange(mi.UInt32, count) * block
-    total = dr.gather(type(values), values, base)
-    for k in range(1, block):
-        total += dr.gather(type(values), values, base + k)
-    return total
+    (deterministic, unlike atomic scatter-adds). ``dr.block_sum`` compiles
+    in constant time, where an unrolled sum of ``block`` gathers took 0.4 s
+    to compile at 64 and 41 s at 1024."""
+    # A component broadcast from width 1 would be returned unsummed:
+    # adding full-width zeros gives every component the full width.
+    return dr.block_sum(values + dr.zeros(type(values), dr.width(values)), block)
 
 
 def to_int(value) -> int:
