@@ -163,3 +163,22 @@ def test_tracers_agree_through_pass_through_surfaces():
     np.testing.assert_allclose(stack, wave, rtol=1e-5, atol=1e-6)
     assert {k: stack_counts[k] for k in COUNTS} == {k: wave_counts[k] for k in COUNTS}
     assert stack_counts["passthrough"] > 0
+
+
+def test_a_reused_tracer_follows_the_sensor():
+    """Camera rays are made inside the frozen kernel: alternating between
+    two sensors (other pose, field of view and film size) must give each
+    sensor's own image, bit for bit as a fresh integrator renders it."""
+    near = camera(size=24, fov=40)
+    far = camera(origin=(1.5, 1.0, 4.0), size=16, fov=25)
+    loaded = mi.load_dict(scene(floor(), wall(), sphere((0, 0, 0), 0.6, {"type": "dielectric"}),
+                                point_light((1, 3, 3)), sensor=near, second_sensor=far))
+    settings = integrator(max_depth=6, aa="grid", aa_samples=2)
+    reused = mi.load_dict(settings)
+    images = [np.array(mi.render(loaded, sensor=index, integrator=reused))
+              for index in (0, 1, 0, 1)]
+    for index, image in zip((0, 1, 0, 1), images):
+        assert_finite(image)
+        fresh = np.array(mi.render(loaded, sensor=index, integrator=mi.load_dict(settings)))
+        np.testing.assert_array_equal(image, fresh)
+    assert images[0].shape != images[1].shape
