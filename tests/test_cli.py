@@ -1,5 +1,6 @@
 """The mitsuba-whitted command line, run as a user would."""
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -13,9 +14,10 @@ ROOT = Path(__file__).resolve().parent.parent
 SCENE = ROOT / "scenes" / "cosc363.xml"
 
 
-def cli(*args, check=True):
+def cli(*args, check=True, env=None):
     return subprocess.run([sys.executable, "-m", "mitsuba_whitted.cli", *args],
-                          capture_output=True, text=True, timeout=600, check=check, cwd=ROOT)
+                          capture_output=True, text=True, timeout=600, check=check, cwd=ROOT,
+                          env=env)
 
 
 def test_render_report_scene_small(tmp_path):
@@ -26,6 +28,19 @@ def test_render_report_scene_small(tmp_path):
     assert np.isfinite(image).all() and image.max() > 0.1
     line = result.stdout.strip().splitlines()[-1]
     assert "48x48 rendered in" in line and "M rays/s" in line
+
+
+def test_a_second_process_compiles_nothing(tmp_path):
+    """Dr.Jit's kernel cache only helps if every kernel comes out the same
+    in each process: a value that differs per process (an address, say)
+    baked into the tracer's kernel would compile it anew on every run."""
+    env = dict(os.environ, HOME=str(tmp_path / "home"), XDG_CACHE_HOME=str(tmp_path / "cache"))
+    cached = tmp_path / "home" / ".drjit"
+    render = ("render", str(SCENE), "-o", str(tmp_path / "a.exr"), "-D", "res=16")
+    cli(*render, env=env)
+    first = set(cached.iterdir())
+    cli(*render, env=env)
+    assert first and set(cached.iterdir()) == first
 
 
 def test_png_is_the_srgb_encoding_of_the_exr(tmp_path):

@@ -25,7 +25,6 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
-from ..camera import camera_rays
 from ..jit import index_range, sum_blocks, to_int
 from .frozen import FrozenKernel
 from .shading import KIND_CODES, HitShader, HitWork
@@ -87,12 +86,6 @@ class Tracer:
         #: replay the very same rays through Mitsuba's own ray casting).
         self.captured = None
         self._start()
-
-    def trace_camera(self, sensor: mi.Sensor, positions: mi.Point2f, keys: mi.UInt32):
-        """Radiance and alpha of the camera rays through ``positions``
-        (pixel units in the crop window), ``keys`` identifying the samples."""
-        ray, weight = camera_rays(sensor, positions)
-        return self.trace(RayBatch(ray.o, ray.d, mi.Color3f(weight), keys))
 
     def reload(self) -> None:
         """Ready for another render: shape placements may have changed

@@ -32,7 +32,6 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
-from ..camera import camera_placement, rays_through
 from .frozen import FrozenKernel
 from .raytree import RayBatch, Tracer
 from .shading import KIND_CODES, HitShader
@@ -86,7 +85,6 @@ class StackTreeTracer(Tracer):
         super().__init__(shader, intersect, refiner)
         self.capacity = stack_capacity(shader.spawning_generations(), shader.fan_out)
         self._kernel = FrozenKernel(self._trace_kernel, "stack tracer")
-        self._camera_kernel = FrozenKernel(self._trace_camera_kernel, "stack tracer")
 
     @staticmethod
     def supports(shader: HitShader) -> bool:
@@ -94,31 +92,15 @@ class StackTreeTracer(Tracer):
 
     def trace(self, rays: RayBatch):
         """Radiance and alpha (primary hit) of each camera ray."""
-        return self._finish(len(rays), self._kernel(
-            len(rays), self.shader.scene, self._kernel_inputs, *rays.fields()))
-
-    def trace_camera(self, sensor: mi.Sensor, positions: mi.Point2f, keys: mi.UInt32):
-        """As :meth:`Tracer.trace_camera`, with the camera rays made inside
-        the same kernel (they never reach memory)."""
-        width = dr.width(keys)
-        return self._finish(width, self._camera_kernel(
-            width, self.shader.scene, self._kernel_inputs, sensor, *camera_placement(sensor),
-            positions, keys))
-
-    def _finish(self, width: int, outputs):
-        """Count a kernel's rays; its radiance and alpha."""
-        radiance, alpha, counts, deepest = outputs
-        self.stats.camera += width
+        self.stats.camera += len(rays)
         self.stats.batches += 1
+        radiance, alpha, counts, deepest = self._kernel(
+            len(rays), self.shader.scene, self._kernel_inputs, *rays.fields())
         for kind, count in counts.items():
             setattr(self.stats, kind, getattr(self.stats, kind) + dr.sum(count))
         # Kept on the device: reading it here would wait for the kernel.
         self.stats.generations = dr.maximum(self.stats.generations, dr.max(deepest) + 1)
         return radiance, alpha
-
-    def _trace_camera_kernel(self, scene, inputs, sensor, film_scale, time, positions, keys):
-        ray, weight = rays_through(sensor, positions, film_scale, time)
-        return self._trace_kernel(scene, inputs, ray.o, ray.d, mi.Color3f(weight), keys)
 
     @dr.syntax
     def _trace_kernel(self, scene, inputs, o, d, throughput, key):

@@ -3,6 +3,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
+from ..camera import camera_rays
 from ..jit import index_range
 from ..errors import ParameterError, VariantError, check, check_choice
 from . import antialias
@@ -281,9 +282,10 @@ class WhittedIntegrator(mi.SamplingIntegrator):
             alpha = dr.zeros(mi.Float, total)
             for start in range(0, total, self.wavefront_size):
                 part = index_range(start, min(start + self.wavefront_size, total))
-                part_radiance, part_alpha = tracer.trace_camera(
-                    sensor, dr.gather(mi.Point2f, positions, part),
-                    dr.gather(mi.UInt32, keys, part))
+                ray, weight = camera_rays(sensor, dr.gather(mi.Point2f, positions, part))
+                rays = RayBatch(ray.o, ray.d, mi.Color3f(weight),
+                                dr.gather(mi.UInt32, keys, part))
+                part_radiance, part_alpha = tracer.trace(rays)
                 dr.scatter(radiance, part_radiance, part)
                 dr.scatter(alpha, part_alpha, part)
                 if self.progress is not None:
