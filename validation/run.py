@@ -118,7 +118,7 @@ def equivalence_section(report: MarkdownReport, cache: ReferenceCache) -> None:
 
 def report_scene_section(report: MarkdownReport, cache: ReferenceCache) -> None:
     defines = {"res": str(SCENE_RES)}
-    scene = mi.load_file(str(REPORT_SCENE), **defines)
+    scene = mitsuba_whitted.load_file(REPORT_SCENE, **defines)
     key = cache_key(kind="report scene", scene=scene_digest(REPORT_SCENE, defines),
                     spp=SCENE_SPP, passes=16, integrator={"type": "path", "max_depth": 32})
     reference = cached_reference(cache, key, scene, SCENE_SPP, progress=Progress())

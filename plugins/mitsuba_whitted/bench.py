@@ -33,6 +33,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from . import load_file
 from .jit import timed
 from .compare.sweep import RELATION_PREFIX, speedup_text
 
@@ -163,7 +164,7 @@ def child_peak_memory(scene_path: Path, defines: dict) -> float:
     code = ("import sys, json, resource, mitsuba_whitted, mitsuba as mi, drjit as dr\n"
             "mitsuba_whitted.set_variant('llvm_ad_rgb')\n"
             "defines = json.loads(sys.argv[2])\n"
-            "scene = mi.load_file(sys.argv[1], **defines)\n"
+            "scene = mitsuba_whitted.load_file(sys.argv[1], **defines)\n"
             "mi.render(scene); dr.sync_thread()\n"
             "print('peak_rss_mib', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)\n")
     result = subprocess.run([sys.executable, "-c", code, str(scene_path), json.dumps(defines)],
@@ -199,7 +200,7 @@ def scaling_table(scene_path: Path, base: dict, sweeps: dict, repeats: int) -> l
             gc.collect()
             dr.flush_malloc_cache()
             defines = dict(base, **{parameter: str(value)})
-            scene = mi.load_file(str(scene_path), **defines)
+            scene = load_file(scene_path, **defines)
             timing = time_render(scene, scene.integrator(), repeats)
             rows.append(ScalingRow(parameter, value, timing.warm, timing.stats["total"]))
     return rows
@@ -303,7 +304,7 @@ class BenchSettings:
 def run(settings: BenchSettings, report=print) -> dict:
     """All measurements; ``report`` receives progress lines."""
     scene_path = Path(settings.scene)
-    scene = mi.load_file(str(scene_path), **settings.defines)
+    scene = load_file(scene_path, **settings.defines)
     integrator = scene.integrator()
     if not hasattr(integrator, "capture_rays"):
         raise RuntimeError("mitsuba-whitted bench: the scene's integrator is not 'whitted'.")

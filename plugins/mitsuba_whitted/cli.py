@@ -68,11 +68,11 @@ class Progress:
 def _load_scene(path: str, defines: dict):
     import os
 
-    import mitsuba as mi
+    import mitsuba_whitted
 
     if not os.path.isfile(path):
         raise UsageError(f"mitsuba-whitted: scene file '{path}' does not exist.")
-    return mi.load_file(path, **defines)
+    return mitsuba_whitted.load_file(path, **defines)
 
 
 def command_render(args) -> int:

@@ -15,6 +15,7 @@ from pathlib import Path
 import mitsuba as mi
 import numpy as np
 
+from .. import load_file
 from .cache import ReferenceCache, cache_key, scene_digest
 from .metrics import missing_energy_share, missing_light, noise_rel_mse, rel_squared_error
 from .reference import Reference, cached_reference, path_settings
@@ -61,7 +62,7 @@ def load_scene(path: str | Path, defines: dict | None = None) -> mi.Scene:
     path = Path(path)
     if not path.is_file():
         raise CompareError(f"mitsuba-whitted: scene file '{path}' does not exist.")
-    scene = mi.load_file(str(path), **(defines or {}))
+    scene = load_file(path, **(defines or {}))
     if not scene.sensors():
         raise CompareError(f"mitsuba-whitted: scene '{path}' has no sensor, "
                            f"so there is no image to compare.")
