@@ -35,7 +35,7 @@ import numpy as np
 
 from . import load_file
 from .jit import timed
-from .compare.sweep import RELATION_PREFIX, speedup_text
+from .compare.sweep import CONTRAST_AA, RELATION_PREFIX, speedup_text
 
 DEFAULT_SCENE = Path(__file__).resolve().parents[2] / "scenes" / "cosc363.xml"
 
@@ -244,8 +244,7 @@ def equal_error_settings() -> dict:
     for n in (8, 16):
         for pruning in (1e-4, 1e-3, 1e-2):
             settings[f"whitted contrast {n}x{n}, min_throughput {pruning:g}"] = {
-                "aa": "contrast", "aa_samples": n, "aa_threshold": 0.02,
-                "min_throughput": pruning, "aa_budget": 256}
+                **CONTRAST_AA, "aa_samples": n, "min_throughput": pruning}
     return {label: {"max_depth": EQUAL_ERROR_DEPTH, **values} for label, values in settings.items()}
 
 
@@ -391,7 +390,8 @@ def format_table(results: dict) -> str:
                      f"  {row['rays']:>12,} rays  {row['rays_per_second'] / 1e6:6.2f} M rays/s")
     eq = results["equal_error"]
     relation = RELATION_PREFIX[eq["relation"]]
-    lines.append(f"  equal-error speed-up over path: {relation}{eq['speedup']:.2g}x on {eq['scene']}"
+    lines.append(f"  equal-error speed-up over path: {speedup_text(eq['speedup'], eq['relation'])}"
+                 f" on {eq['scene']}"
                  f" at {eq['resolution']}^2, {eq['whitted']} (relMSE {eq['whitted_rel_mse']:.2e} in "
                  f"{eq['whitted_seconds']:.3f} s; path needs {relation}{eq['path_spp']:.0f} spp, "
                  f"{eq['path_seconds']:.3f} s; reference {eq['reference_spp']} spp, its own noise "

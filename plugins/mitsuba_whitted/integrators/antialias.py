@@ -3,8 +3,8 @@ adaptive 4-way subdivision and contrast-driven supersampling.
 
 Every pattern is deterministic and every reduction has a fixed order, so the
 same scene always gives the same image bit for bit: samples of one pixel (or
-one cell) are contiguous and summed by gathers in a fixed order, never by
-atomic scatter-adds whose order would vary between runs.
+one cell) are contiguous and summed block by block in a fixed order, never
+by atomic scatter-adds whose order would vary between runs.
 
 Adaptive subdivision (the report's recursive anti-aliasing): a pixel is first
 sampled at the centres of its four quadrants. A quadrant whose colour differs
@@ -37,6 +37,8 @@ import mitsuba as mi
 from ..jit import index_range, opaque_float, sum_blocks
 from ..mathutil import hammersley
 
+#: Offsets (dy, dx) of a pixel's 8 neighbours.
+NEIGHBOURS = tuple((dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx) != (0, 0))
 #: Quadrant centres of the unit cell, in the order children are stored.
 QUADRANTS = ((0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75))
 
@@ -65,6 +67,12 @@ def _grid_positions(width: int, height: int, n: int):
     return mi.Point2f(x, y)
 
 
+def _block_means(radiance: mi.Color3f, alpha: mi.Float, block: int) -> tuple:
+    """Mean radiance and alpha of each run of ``block`` consecutive samples."""
+    scale = 1.0 / block
+    return sum_blocks(radiance, block) * scale, sum_blocks(alpha, block) * scale
+
+
 def render_grid(width: int, height: int, n: int, shade: ShadeFn):
     """Box-filtered pixels from n x n stratified samples (n = 1: centres)."""
     positions = _grid_positions(width, height, n)
@@ -72,8 +80,7 @@ def render_grid(width: int, height: int, n: int, shade: ShadeFn):
     count = SampleCount(dr.width(positions), 0, (dr.width(positions),))
     if n == 1:
         return radiance, alpha, count
-    scale = 1.0 / (n * n)
-    return sum_blocks(radiance, n * n) * scale, sum_blocks(alpha, n * n) * scale, count
+    return _block_means(radiance, alpha, n * n) + (count,)
 
 
 def _quadrant_positions(origins: mi.Point2f, size: float) -> mi.Point2f:
@@ -152,12 +159,11 @@ class AdaptiveSampler:
         child_radiance, child_alpha = None, None
         for radiance, alpha, cells in reversed(levels):
             if child_radiance is not None:
-                mean_radiance = sum_blocks(child_radiance, 4) * 0.25
-                mean_alpha = sum_blocks(child_alpha, 4) * 0.25
+                mean_radiance, mean_alpha = _block_means(child_radiance, child_alpha, 4)
                 dr.scatter(radiance, mean_radiance, cells)
                 dr.scatter(alpha, mean_alpha, cells)
             child_radiance, child_alpha = radiance, alpha
-        return sum_blocks(child_radiance, 4) * 0.25, sum_blocks(child_alpha, 4) * 0.25
+        return _block_means(child_radiance, child_alpha, 4)
 
 
 def neighbourhood_contrast(radiance: mi.Color3f, alpha: mi.Float, width: int,
@@ -169,13 +175,12 @@ def neighbourhood_contrast(radiance: mi.Color3f, alpha: mi.Float, width: int,
     x, y = index % width, index // width
     channels = (radiance.x, radiance.y, radiance.z, alpha)
     high, low = list(channels), list(channels)
-    for dy in (-1, 0, 1):
-        for dx in (-1, 0, 1):
-            neighbour = (dr.clip(y + dy, 0, height - 1) * width
-                         + dr.clip(x + dx, 0, width - 1))
-            for c, values in enumerate(channels):
-                value = dr.gather(mi.Float, values, mi.UInt32(neighbour))
-                high[c], low[c] = dr.maximum(high[c], value), dr.minimum(low[c], value)
+    for dy, dx in NEIGHBOURS:
+        neighbour = (dr.clip(y + dy, 0, height - 1) * width
+                     + dr.clip(x + dx, 0, width - 1))
+        for c, values in enumerate(channels):
+            value = dr.gather(mi.Float, values, mi.UInt32(neighbour))
+            high[c], low[c] = dr.maximum(high[c], value), dr.minimum(low[c], value)
     contrast = mi.Float(0)
     for hi, lo in zip(high, low):
         spread = hi + lo
@@ -208,9 +213,9 @@ class ContrastSampler:
         positions = _pattern_positions(refined, width, samples)
         keys = index_range(pixels, pixels + dr.width(positions))
         fine_radiance, fine_alpha = shade(positions, keys)
-        scale = 1.0 / samples
-        dr.scatter(radiance, sum_blocks(fine_radiance, samples) * scale, refined)
-        dr.scatter(alpha, sum_blocks(fine_alpha, samples) * scale, refined)
+        fine_radiance, fine_alpha = _block_means(fine_radiance, fine_alpha, samples)
+        dr.scatter(radiance, fine_radiance, refined)
+        dr.scatter(alpha, fine_alpha, refined)
         dr.scatter(count.per_pixel, mi.UInt32(1 + samples), refined)
         count.samples += dr.width(positions)
         count.per_level += (dr.width(positions),)

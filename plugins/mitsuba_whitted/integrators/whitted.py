@@ -162,7 +162,8 @@ class WhittedIntegrator(mi.SamplingIntegrator):
 
     @property
     def last_sample_map(self):
-        """Camera samples per pixel of the last adaptive render (mi.UInt32)."""
+        """Camera samples per pixel of the last adaptive or contrast render
+        (mi.UInt32)."""
         return self._last.sample_map
 
     @property
