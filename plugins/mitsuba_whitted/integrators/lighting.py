@@ -130,20 +130,22 @@ class DirectLighting:
         self.shadows = shadows
         self.use_ambient = dr.any(settings.ambient != 0)
 
-    def radiance(self, si, bsdf, key, active):
-        """Reflected radiance, and the shadow rays each lane cast."""
+    def delta_samples(self, si, active) -> list:
+        """``(ds, spectrum)`` towards each delta light: the directions the
+        BSDF is asked about (``bsdf_query``) before shading."""
+        return [light.sample_direction(si, mi.Point2f(0.5), active)
+                for light in self.needs.delta_lights]
+
+    def radiance(self, si, bsdf, key, active, terms, samples):
+        """Reflected radiance, and the shadow rays each lane cast.
+        ``terms``: the BSDF's albedo and values towards ``samples`` (the
+        ``delta_samples``); ``active``: lanes lights reach (smooth BSDFs)."""
         result = mi.Color3f(0)
         shadow_rays = mi.UInt32(0)
-        if not self.needs.smooth_surfaces:
-            return result, shadow_rays
-        # Lights are seen only through the smooth (non-delta) part of a BSDF.
-        active = active & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
         if self.use_ambient:
-            diffuse = mi.has_flag(bsdf.flags(), mi.BSDFFlags.Diffuse)
-            albedo = bsdf.eval_diffuse_reflectance(si, active & diffuse)
-            result += dr.select(diffuse, albedo, 0) * mi.Color3f(self.settings.ambient)
-        for light in self.needs.delta_lights:
-            radiance, lit = self._from_light(light, si, bsdf, mi.Point2f(0.5), active)
+            result += dr.select(active, terms.albedo, 0) * mi.Color3f(self.settings.ambient)
+        for (ds, spectrum), value in zip(samples, terms.values):
+            radiance, lit = self._shadowed(si, ds, value * spectrum, active)
             result += radiance
             shadow_rays += mi.UInt32(lit)
         for index, light in enumerate(self.needs.sampled_lights):
@@ -156,7 +158,11 @@ class DirectLighting:
         """Shadowed radiance from one light sample, and where it was tested."""
         ds, spectrum = light.sample_direction(si, sample, active)
         f = bsdf.eval(mi.BSDFContext(), si, si.to_local(ds.d), active)
-        contribution = f * spectrum
+        return self._shadowed(si, ds, f * spectrum, active)
+
+    def _shadowed(self, si, ds, contribution, active):
+        """``contribution`` through the shadow ray to ``ds``, and where a
+        shadow ray was cast (only where it could add light)."""
         lit = active & (ds.pdf > 0) & dr.any(contribution > 0)
         return contribution * self.shadows.transmittance(si, ds.p, lit), lit
 

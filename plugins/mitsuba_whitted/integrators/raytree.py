@@ -27,7 +27,8 @@ import mitsuba as mi
 
 from ..jit import index_range, sum_blocks, to_int
 from .frozen import FrozenKernel
-from .shading import KIND_CODES, HitShader, HitWork
+from .bsdf_query import KIND_CODES
+from .shading import HitShader, HitWork
 
 
 @dataclass
@@ -98,8 +99,7 @@ class Tracer:
         """Fresh statistics, and the tables the kernels read besides the
         scene and the rays."""
         self.stats = RayStats()
-        self._kernel_inputs = (self.refiner.tables() if self.refiner is not None else (),
-                               self.shader.tables())
+        self._kernel_inputs = self.refiner.tables() if self.refiner is not None else ()
 
 
 class RayTreeTracer(Tracer):
@@ -177,8 +177,7 @@ class RayTreeTracer(Tracer):
         refined = None
         if self.refiner is not None:
             refined = mi.UInt32(self.refiner.on_proxy(si, hit))
-        local, shadow, children = self.shader.shade(
-            si, ray, throughput, key, inputs[1], work)
+        local, shadow, children = self.shader.shade(si, ray, throughput, key, work)
         candidates = [(child.o, child.d, child.throughput, child.key, child.code)
                       for child in children]
         return local, mi.Float(hit), shadow, refined, candidates

@@ -13,13 +13,10 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
+from .bsdf_query import BsdfQuery, DeltaChild, query_bsdf
 from .lighting import DirectLighting
 from .offsets import spawn_ray
 from .scene_needs import SceneNeeds
-
-#: Codes stored per candidate child; 0 means "no child".
-KIND_CODES = {"reflection": 1, "refraction": 2, "passthrough": 3}
-
 
 @dataclass
 class TreeSettings:
@@ -51,25 +48,6 @@ class Child:
     code: mi.UInt32
 
 
-def component_table(scene: mi.Scene, kind: str, component) -> "mi.Bool":
-    """Per BSDF registry id: whether that BSDF has this delta component
-    (``kind == "null"``: whether it lets light pass through unscattered)."""
-    bsdfs = {id(shape.bsdf()): shape.bsdf() for shape in scene.shapes() if shape.bsdf()}
-    entries = {}
-    for bsdf in bsdfs.values():
-        index = int(dr.reinterpret_array(mi.UInt32, mi.BSDFPtr(bsdf))[0])
-        if kind == "null":
-            entries[index] = mi.has_flag(bsdf.flags(), mi.BSDFFlags.Null)
-        else:
-            entries[index] = (component < bsdf.component_count()
-                              and mi.has_flag(bsdf.flags(component), mi.BSDFFlags.Delta)
-                              and not mi.has_flag(bsdf.flags(component), mi.BSDFFlags.Null))
-    table = [False] * (max(entries, default=0) + 1)
-    for index, value in entries.items():
-        table[index] = bool(value)
-    return mi.Bool(table)
-
-
 class HitShader:
     """Local radiance and delta children of hits."""
 
@@ -86,12 +64,6 @@ class HitShader:
     @property
     def fan_out(self) -> int:
         return len(self.components)
-
-    def tables(self) -> tuple:
-        """Per component, which BSDFs have it: JIT data the kernels read,
-        so it must reach a frozen kernel as an argument."""
-        return tuple(component_table(self.scene, kind, component)
-                     for kind, component in self.components)
 
     def spawning_generations(self) -> int:
         """How many generations (0, 1, ...) can have children: the ones
@@ -113,51 +85,56 @@ class HitShader:
             spawn=self.fan_out > 0 and direct & (self.needs.hittable_emitters
                                                  | (generation + 3 <= depth)))
 
-    def shade(self, si, ray, throughput, key, tables, work: HitWork):
+    def shade(self, si, ray, throughput, key, work: HitWork):
         """Radiance (times ``throughput``, ``None`` if nothing adds any),
         shadow rays cast per lane (``None`` without lights) and one
         :class:`Child` per component."""
-        hit = si.is_valid()
         local = shadow = None
         children = []
         if work.emit is not False:
             # Misses see the environment emitter, if any.
             local = si.emitter(self.scene).eval(si, mi.Bool(work.emit))
         if work.light is not False or work.spawn is not False:
-            bsdf = si.bsdf(ray)
-        if work.light is not False:
-            radiance, shadow = self.lighting.radiance(si, bsdf, key, hit & work.light)
-            local = radiance if local is None else local + radiance
-        if work.spawn is not False:
-            bsdf_id = dr.reinterpret_array(mi.UInt32, bsdf)
-            active = hit & work.spawn
-            for index, (kind, component) in enumerate(self.components):
-                # Only lanes whose BSDF has this component call into it.
-                has = dr.gather(mi.Bool, tables[index], bsdf_id, active)
-                children.append(self._candidate(index, kind, component, si, bsdf, ray,
-                                                throughput, key, active & has))
+            reflected, shadow, children = self._scatter(si, ray, throughput, key, work)
+            if reflected is not None:
+                local = reflected if local is None else local + reflected
         if local is not None:
             local = local * throughput
         return local, shadow, children
 
-    def _candidate(self, index, kind, component, si, bsdf, ray, throughput, key, active):
-        weight, direction, ok, code = self._child(kind, component, si, bsdf, ray, active)
-        child_throughput = throughput * weight
-        ok &= dr.max(child_throughput) > max(self.settings.min_throughput, 0.0)
-        child = spawn_ray(si, direction, self.needs.scale)
-        child_key = mi.sample_tea_32(key, mi.UInt32(index + 1))[0]
-        return Child(child.o, child.d, child_throughput, child_key, dr.select(ok, code, 0))
+    def _scatter(self, si, ray, throughput, key, work: HitWork):
+        """What the hit's BSDF adds: light reflected from the lights, the
+        shadow rays that took, and the candidate children."""
+        hit = si.is_valid()
+        bsdf = si.bsdf(ray)
+        light = spawn = mi.Bool(False)
+        samples = []
+        if work.light is not False:
+            light = hit & work.light & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+            samples = self.lighting.delta_samples(si, light)
+        if work.spawn is not False:
+            spawn = hit & work.spawn
+        query = BsdfQuery(albedo=work.light is not False and self.lighting.use_ambient,
+                          lights=len(samples),
+                          components=self.components if work.spawn is not False else ())
+        terms = query_bsdf(bsdf, si, query, [si.to_local(ds.d) for ds, _ in samples],
+                           light | spawn)
+        reflected = shadow = None
+        if work.light is not False:
+            reflected, shadow = self.lighting.radiance(si, bsdf, key, light, terms, samples)
+        children = [self._candidate(index, kind, terms.children[index], si, ray,
+                                    throughput, key, spawn)
+                    for index, (kind, _) in enumerate(query.components)]
+        return reflected, shadow, children
 
-    @staticmethod
-    def _child(kind, component, si, bsdf, ray, active):
-        """Weight, direction, validity and kind code of one delta child."""
-        if kind == "null":
-            weight = bsdf.eval_null_transmission(si, active)
-            return weight, ray.d, active & dr.any(weight > 0), mi.UInt32(KIND_CODES["passthrough"])
-        ctx = mi.BSDFContext(mi.TransportMode.Radiance, mi.BSDFFlags.Delta, component)
-        bs, weight = bsdf.sample(ctx, si, 0.5, mi.Point2f(0.5), active)
-        ok = (active & (bs.pdf > 0) & mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
-              & dr.any(weight > 0))
-        reflected = mi.has_flag(bs.sampled_type, mi.BSDFFlags.DeltaReflection)
-        code = dr.select(reflected, KIND_CODES["reflection"], KIND_CODES["refraction"])
-        return weight, si.to_world(bs.wo), ok, mi.UInt32(code)
+    def _candidate(self, index, kind, child: DeltaChild, si, ray, throughput, key, spawn):
+        """The child ray of one component, coded 0 where it is not traced
+        (no such lobe, no children wanted, or pruned by throughput)."""
+        child_throughput = throughput * child.weight
+        ok = spawn & child.ok & (dr.max(child_throughput) > max(self.settings.min_throughput, 0.0))
+        # A pass-through child goes straight on: the ray's own direction.
+        direction = ray.d if kind == "null" else si.to_world(child.wo)
+        spawned = spawn_ray(si, direction, self.needs.scale)
+        child_key = mi.sample_tea_32(key, mi.UInt32(index + 1))[0]
+        return Child(spawned.o, spawned.d, child_throughput, child_key,
+                     dr.select(ok, child.code, 0))

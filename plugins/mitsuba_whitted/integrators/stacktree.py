@@ -34,7 +34,8 @@ import mitsuba as mi
 
 from .frozen import FrozenKernel
 from .raytree import RayBatch, Tracer
-from .shading import KIND_CODES, HitShader
+from .bsdf_query import KIND_CODES
+from .shading import HitShader
 
 #: Most rays one lane's stack holds; deeper trees use the wavefront tracer.
 MAX_STACK = 32
@@ -115,10 +116,10 @@ class StackTreeTracer(Tracer):
         deepest = mi.UInt32(0)
         while size > 0:
             size, radiance, alpha, counts, deepest = self._visit(
-                stack, size - 1, radiance, alpha, counts, deepest, inputs[1])
+                stack, size - 1, radiance, alpha, counts, deepest)
         return radiance, alpha, counts, deepest
 
-    def _visit(self, stack, size, radiance, alpha, counts, deepest, tables):
+    def _visit(self, stack, size, radiance, alpha, counts, deepest):
         """Trace the ray on top of the stack (at ``size``): add its
         radiance, push its children; the loop state afterwards."""
         ray_o, ray_d, weight, key, generation = stack.read(size)
@@ -130,7 +131,7 @@ class StackTreeTracer(Tracer):
         counts = dict(counts)
         if self.refiner is not None:
             counts["refined"] += mi.UInt32(self.refiner.on_proxy(si, hit))
-        local, shadow, children = self.shader.shade(si, ray, weight, key, tables,
+        local, shadow, children = self.shader.shade(si, ray, weight, key,
                                                     self.shader.work(generation))
         if local is not None:
             radiance = radiance + local
