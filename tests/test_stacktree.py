@@ -55,6 +55,44 @@ def lane_walk(roots: mi.Float):
     return total, visited
 
 
+def python_order(root: float) -> int:
+    """A hash of the order in which a plain depth-first walk visits nodes."""
+    stack, order = [(root, 0)], 0
+    while stack:
+        value, depth = stack.pop()
+        order = (order * 31 + int(np.float32(value) * 8) + depth) % 2**32
+        for child in _children(value):
+            if child > 1.0:
+                stack.append((child, depth + 1))
+    return order
+
+
+def _visit_holding(stack, size, node, total, order):
+    """The stack tracer's scheme: go on with the last child, leave earlier
+    ones on the stack, pop where there is no child."""
+    value, depth = node
+    total = total + value * mi.Float(depth + 1)
+    order = order * 31 + mi.UInt32(value * 8) + depth
+    live = mi.Bool(False)
+    for child in _children(value):
+        valid = child > 1.0
+        size = stack.push(size, node, live & valid)
+        node = (dr.select(valid, child, node[0]), dr.select(valid, depth + 1, node[1]))
+        live |= valid
+    node, size, popped = stack.pop(size, node, ~live & (size > 0))
+    return size, node, live | popped, total, order
+
+
+@dr.syntax
+def lane_walk_holding(roots: mi.Float):
+    stack = LaneStack.allocate((mi.Float, mi.UInt32), CAPACITY)
+    size, node, live = mi.UInt32(0), (roots, mi.UInt32(0)), mi.Bool(True)
+    total, order = mi.Float(0), mi.UInt32(0)
+    while live:
+        size, node, live, total, order = _visit_holding(stack, size, node, total, order)
+    return total, order
+
+
 def test_lane_stack_matches_a_python_stack_when_lanes_diverge():
     """Lanes of one packet at different heights (the case Dr.Jit's per-lane
     local-memory indexing gets wrong) still walk their own trees."""
@@ -182,3 +220,13 @@ def test_a_reused_tracer_follows_the_sensor():
         fresh = np.array(mi.render(loaded, sensor=index, integrator=mi.load_dict(settings)))
         np.testing.assert_array_equal(image, fresh)
     assert images[0].shape != images[1].shape
+
+
+def test_holding_the_next_node_walks_in_the_same_order():
+    """Keeping the next node in registers and popping only where a node has
+    no child visits the nodes of a plain depth-first walk, in its order
+    (so the tracer's sums keep their order, and their bits)."""
+    total, order = lane_walk_holding(mi.Float(ROOTS))
+    np.testing.assert_allclose(np.array(total), [python_walk(root)[0] for root in ROOTS],
+                               rtol=1e-6)
+    assert list(np.array(order)) == [python_order(root) for root in ROOTS]

@@ -39,7 +39,8 @@ class BsdfQuery:
 @dataclass
 class DeltaChild:
     """One delta component's sample at each lane: its weight, its local
-    direction, whether it exists and its kind code."""
+    direction (none for pass-through: that ray goes straight on), whether
+    it exists and its kind code."""
     weight: mi.Color3f
     wo: mi.Vector3f
     ok: mi.Bool
@@ -108,4 +109,4 @@ def _null_child(bsdf: mi.BSDF, si) -> tuple:
     if not mi.has_flag(bsdf.flags(), mi.BSDFFlags.Null):
         return _no_child()
     weight = mi.Color3f(bsdf.eval_null_transmission(si))
-    return weight, -si.wi, dr.any(weight > 0), mi.UInt32(KIND_CODES["passthrough"])
+    return weight, mi.Vector3f(0), dr.any(weight > 0), mi.UInt32(KIND_CODES["passthrough"])
