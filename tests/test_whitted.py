@@ -7,6 +7,7 @@ import pytest
 
 import mitsuba_whitted
 from conftest import assert_finite
+from mitsuba_whitted.integrators.scene_needs import analyse
 from scenes import (camera, diffuse, floor, glass_scene, integrator, point_light, rgb, scene,
                     sphere)
 
@@ -233,3 +234,77 @@ def test_a_light_skips_its_own_hits_only_where_it_cannot_see_itself(shape, skipp
     light = loaded.emitters()[0]
     assert bool(_on_own_shape(light, hit_light)[0]) == skipped
     assert not bool(_on_own_shape(light, hit_other)[0])
+
+
+class _Switch(mi.BSDF):
+    """A test BSDF that is a mirror or a diffuse surface, switched through
+    ``mi.traverse``: its flags change after the scene is loaded."""
+
+    def __init__(self, props):
+        mi.BSDF.__init__(self, props)
+        # Opaque, so that a change does not make Dr.Jit trace anew by itself.
+        self.mirror = dr.opaque(mi.Float, props.get("mirror", 0.0))
+        self._set_flags()
+
+    def _is_mirror(self) -> bool:
+        return bool(self.mirror[0] > 0.5)
+
+    def _set_flags(self):
+        flag = mi.BSDFFlags.DeltaReflection if self._is_mirror() else mi.BSDFFlags.DiffuseReflection
+        self.m_components = [flag | mi.BSDFFlags.FrontSide]
+        self.m_flags = flag | mi.BSDFFlags.FrontSide
+
+    def traverse(self, callback):
+        callback.put("mirror", self.mirror, mi.ParamFlags.NonDifferentiable)
+
+    def parameters_changed(self, keys):
+        self._set_flags()
+
+    def sample(self, ctx, si, sample1, sample2, active=True):
+        bs = dr.zeros(mi.BSDFSample3f)
+        bs.wo = mi.reflect(si.wi) if self._is_mirror() else mi.warp.square_to_cosine_hemisphere(sample2)
+        bs.pdf = 1.0 if self._is_mirror() else mi.warp.square_to_cosine_hemisphere_pdf(bs.wo)
+        bs.eta = 1.0
+        bs.sampled_type = mi.UInt32(+self.m_flags)
+        return bs, mi.Color3f(0.8 if self._is_mirror() else 0.5)
+
+    def eval(self, ctx, si, wo, active=True):
+        if self._is_mirror():
+            return mi.Color3f(0)
+        return mi.Color3f(0.5 * dr.inv_pi * dr.maximum(mi.Frame3f.cos_theta(wo), 0))
+
+    def pdf(self, ctx, si, wo, active=True):
+        return mi.Float(0)
+
+    def eval_pdf(self, ctx, si, wo, active=True):
+        return self.eval(ctx, si, wo, active), self.pdf(ctx, si, wo, active)
+
+
+def test_a_reused_integrator_follows_a_bsdf_whose_lobes_change():
+    """Kernels are specialised to each BSDF's lobes, so an integrator used
+    again after a BSDF turned from diffuse into a mirror renders what a
+    fresh one does (a conductor elsewhere keeps the scene's delta
+    components the same, so only that BSDF's own flags tell)."""
+    mi.register_bsdf("test_switch", lambda props: _Switch(props))
+
+    def description(mirror):
+        return scene(floor(y=-1.0), point_light((0, 3, 2)),
+                     sphere((-0.7, 0, 0), 0.5, {"type": "test_switch", "mirror": mirror}),
+                     sphere((0.7, 0, 0), 0.5, {"type": "conductor"}))
+
+    loaded = mi.load_dict(description(0.0))
+    whitted = mi.load_dict(integrator(max_depth=4))
+    diffuse_image = np.array(mi.render(loaded, integrator=whitted))
+    before = analyse(loaded)
+    params = mi.traverse(loaded)
+    key = next(k for k in params.keys() if k.endswith("mirror"))
+    params[key] = dr.opaque(mi.Float, 1.0)
+    params.update()
+    after = analyse(loaded)
+    assert after.delta_components == before.delta_components
+    assert after != before, "what the scene needs must tell the lobes changed"
+    switched = np.array(mi.render(loaded, integrator=whitted))
+    fresh = np.array(mi.render(mi.load_dict(description(1.0)),
+                               integrator=mi.load_dict(integrator(max_depth=4))))
+    assert not np.allclose(diffuse_image, fresh), "the switch must change the image"
+    np.testing.assert_array_equal(switched, fresh)

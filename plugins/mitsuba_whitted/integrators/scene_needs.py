@@ -36,6 +36,9 @@ class SceneNeeds:
     scale: float = 1.0
     #: Shapes whose hits are refined by an exact analytic intersection.
     analytic_shapes: list = field(default_factory=list)
+    #: Each BSDF's flags, component by component: the kernels are
+    #: specialised to them (``bsdf_query``), so a change must rebuild them.
+    bsdf_flags: tuple = ()
 
     @property
     def hittable_emitters(self) -> bool:
@@ -81,4 +84,5 @@ def analyse(scene: mi.Scene) -> SceneNeeds:
     needs.smooth_surfaces = any(mi.has_flag(b.flags(), mi.BSDFFlags.Smooth) for b in bsdfs)
     needs.scale = scene_scale(scene)
     needs.analytic_shapes = [s for s in scene.shapes() if hasattr(s, "world_to_canonical_matrix")]
+    needs.bsdf_flags = tuple(tuple(b.flags(i) for i in range(b.component_count())) for b in bsdfs)
     return needs
