@@ -123,26 +123,25 @@ class AdaptiveSampler:
             radiance, alpha = shade(positions, keys)
             count.samples += dr.width(positions)
             count.per_level += (dr.width(positions),)
-            split = self._split_mask(radiance, len(levels), count, budget)
-            levels.append((radiance, alpha, split))
-            if split is None:
+            cells = self._cells_to_split(radiance, len(levels), count, budget)
+            levels.append((radiance, alpha, cells))
+            if cells is None:
                 break
-            cells = dr.compress(split)
             centres = dr.gather(mi.Point2f, positions, cells)
             pixel = mi.UInt32(centres.y) * width + mi.UInt32(centres.x)
             dr.scatter_reduce(dr.ReduceOp.Add, count.per_pixel, mi.UInt32(4), pixel)
             origins = mi.Point2f(centres - opaque_float(size / 4))
             size *= 0.5
-            levels[-1] = (radiance, alpha, cells)
         count.levels = len(levels) - 1
         return self._combine(levels) + (count,)
 
-    def _split_mask(self, radiance, level: int, count: SampleCount, budget: int):
-        """Quadrants to refine, or ``None`` when this level is the last."""
+    def _cells_to_split(self, radiance, level: int, count: SampleCount, budget: int):
+        """Indices of the quadrants to refine, or ``None`` when this level
+        is the last (one wait for the device: the compaction's size)."""
         if level >= self.max_depth:
             return None
-        split = _differs(radiance, self.threshold)
-        wanted = 4 * int(dr.count(split)[0])
+        cells = dr.compress(_differs(radiance, self.threshold))
+        wanted = 4 * dr.width(cells)
         if wanted == 0:
             return None
         if count.samples + wanted > budget:
@@ -152,7 +151,7 @@ class AdaptiveSampler:
                 f"{wanted} samples would pass the budget of {self.budget_spp:g} samples per "
                 "pixel ('aa_budget'); raise 'aa_budget' or 'aa_threshold'.")
             return None
-        return split
+        return cells
 
     def _combine(self, levels):
         """Bottom-up: a refined quadrant takes the mean of its four children."""
