@@ -5,7 +5,7 @@ import mitsuba as mi
 import numpy as np
 
 from scenes import camera, diffuse, rgb, scene, sphere
-from mitsuba_whitted.integrators.bsdf_query import (KIND_CODES, BsdfQuery, has_delta_component,
+from mitsuba_whitted.integrators.bsdf_query import (KIND_CODES, BsdfQuery, has_delta_lobe,
                                                     query_bsdf)
 
 #: Two local light directions, both above the surface.
@@ -59,7 +59,7 @@ def _expected(bsdf, si, lanes):
             weight = bsdf.eval_null_transmission(si) if has else mi.Color3f(0)
             children.append((weight, has and dr.any(weight > 0)))
             continue
-        if not has_delta_component(bsdf, component):
+        if not has_delta_lobe(bsdf, component):
             children.append((mi.Color3f(0), False))
             continue
         ctx = mi.BSDFContext(mi.TransportMode.Radiance, mi.BSDFFlags.Delta, component)

@@ -80,13 +80,14 @@ def _answer(bsdf: mi.BSDF, query: BsdfQuery, si, directions) -> tuple:
     return albedo, values, children
 
 
-def has_delta_component(bsdf: mi.BSDF, component: int) -> bool:
-    """Whether ``component`` of ``bsdf`` is a delta (mirror or refracting)
-    lobe; null (pass-through) parts are not."""
+def has_delta_lobe(bsdf: mi.BSDF, component: int, kind=mi.BSDFFlags.Delta) -> bool:
+    """Whether ``component`` of ``bsdf`` is a delta lobe of ``kind`` (any
+    delta lobe, or e.g. ``DeltaTransmission``); null (pass-through) parts
+    are not."""
     if component >= bsdf.component_count():
         return False
     flags = bsdf.flags(component)
-    return mi.has_flag(flags, mi.BSDFFlags.Delta) and not mi.has_flag(flags, mi.BSDFFlags.Null)
+    return mi.has_flag(flags, kind) and not mi.has_flag(flags, mi.BSDFFlags.Null)
 
 
 def _no_child() -> tuple:
@@ -94,7 +95,7 @@ def _no_child() -> tuple:
 
 
 def _delta_child(bsdf: mi.BSDF, component: int, si) -> tuple:
-    if not has_delta_component(bsdf, component):
+    if not has_delta_lobe(bsdf, component):
         return _no_child()
     ctx = mi.BSDFContext(mi.TransportMode.Radiance, mi.BSDFFlags.Delta, component)
     bs, weight = bsdf.sample(ctx, si, 0.5, mi.Point2f(0.5))

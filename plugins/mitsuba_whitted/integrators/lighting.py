@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
+from .bsdf_query import has_delta_lobe
 from .offsets import spawn_ray_to
 from .scene_needs import SceneNeeds
 
@@ -85,39 +86,45 @@ class ShadowTester:
 
     def _pass_weight(self, si: mi.SurfaceInteraction3f, ray: mi.Ray3f,
                      active: mi.Bool) -> mi.Color3f:
-        """What a surface lets through along the shadow ray, 0 if it blocks.
+        """What a surface lets through along the shadow ray, 0 if it blocks:
+        one dispatch, in which a BSDF that cannot let light through answers
+        0 without any call (see :meth:`_passes`)."""
+        return dr.dispatch(si.bsdf(ray), self._passes, si, active)
+
+    def _passes(self, bsdf: mi.BSDF, si: mi.SurfaceInteraction3f, active) -> mi.Color3f:
+        """What ``bsdf`` lets through.
 
         "physical": only surfaces that transmit without bending the ray
         (index-matched dielectrics, thin dielectrics, null and masks);
         "seed": refracting surfaces too, tinted by their transmission, like
         the report's lightened shadows behind glass.
         """
-        bsdf = si.bsdf(ray)
         passed = mi.Color3f(0)
         for component in self.needs.transmission_components:
+            if not has_delta_lobe(bsdf, component, mi.BSDFFlags.DeltaTransmission):
+                continue
             ctx = mi.BSDFContext(mi.TransportMode.Radiance,
                                  mi.BSDFFlags.DeltaTransmission, component)
-            weight, ok = self._transmission(bsdf, ctx, si, active)
+            weight, ok = self._transmission(bsdf, ctx, si)
             if not self.seed_mode:
-                ok &= self._bends_no_ray(bsdf, ctx, si, active)
+                ok &= self._bends_no_ray(bsdf, ctx, si)
             passed += dr.select(ok, weight, mi.Color3f(0))
-        if self.needs.null_surfaces:
-            passed += bsdf.eval_null_transmission(si, active)
+        if mi.has_flag(bsdf.flags(), mi.BSDFFlags.Null):
+            passed += bsdf.eval_null_transmission(si)
         return passed
 
     @staticmethod
-    def _transmission(bsdf, ctx, si, active):
-        bs, weight = bsdf.sample(ctx, si, 0.5, mi.Point2f(0.5), active)
-        ok = active & (bs.pdf > 0) & mi.has_flag(bs.sampled_type,
-                                                 mi.BSDFFlags.DeltaTransmission)
-        return weight, ok
+    def _transmission(bsdf, ctx, si):
+        bs, weight = bsdf.sample(ctx, si, 0.5, mi.Point2f(0.5))
+        ok = (bs.pdf > 0) & mi.has_flag(bs.sampled_type, mi.BSDFFlags.DeltaTransmission)
+        return mi.Color3f(weight), ok
 
     @staticmethod
-    def _bends_no_ray(bsdf, ctx, si, active) -> mi.Bool:
+    def _bends_no_ray(bsdf, ctx, si) -> mi.Bool:
         """Whether the transmission leaves an oblique ray unbent."""
         probe = mi.SurfaceInteraction3f(si)
         probe.wi = dr.mulsign(mi.Vector3f(*PROBE_DIRECTION), si.wi.z)
-        bs, _ = bsdf.sample(ctx, probe, 0.5, mi.Point2f(0.5), active)
+        bs, _ = bsdf.sample(ctx, probe, 0.5, mi.Point2f(0.5))
         return dr.dot(bs.wo, -probe.wi) >= STRAIGHT_COSINE
 
 
