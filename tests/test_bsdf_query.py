@@ -77,7 +77,7 @@ def _close(actual, lanes, expected):
 def test_one_dispatch_answers_as_each_method_does():
     loaded = _scene()
     ray, si = _hits(loaded)
-    query = BsdfQuery(albedo=True, lights=2, components=COMPONENTS)
+    query = BsdfQuery(albedo=True, components=COMPONENTS)
     terms = query_bsdf(si.bsdf(ray), si, query, _directions(), si.is_valid())
     shape_of = np.array(dr.reinterpret_array(mi.UInt32, si.shape))
     checked = set()
@@ -100,7 +100,7 @@ def test_one_dispatch_answers_as_each_method_does():
 def test_children_carry_their_kind_and_only_where_the_lobe_exists():
     loaded = _scene()
     ray, si = _hits(loaded)
-    query = BsdfQuery(albedo=False, lights=0, components=COMPONENTS)
+    query = BsdfQuery(albedo=False, components=COMPONENTS)
     terms = query_bsdf(si.bsdf(ray), si, query, [], si.is_valid())
     reflection, refraction, passthrough = terms.children
     codes = {name: np.unique(np.array(child.code)[np.array(child.ok)])
@@ -119,5 +119,5 @@ def test_children_carry_their_kind_and_only_where_the_lobe_exists():
 def test_an_empty_query_calls_nothing():
     loaded = _scene()
     ray, si = _hits(loaded)
-    terms = query_bsdf(si.bsdf(ray), si, BsdfQuery(False, 0, ()), [], si.is_valid())
+    terms = query_bsdf(si.bsdf(ray), si, BsdfQuery(False, ()), [], si.is_valid())
     assert terms.values == [] and terms.children == []

@@ -29,10 +29,10 @@ KIND_CODES = {"reflection": 1, "refraction": 2, "passthrough": 3}
 
 @dataclass(frozen=True)
 class BsdfQuery:
-    """Which parts a hit wants: the diffuse albedo, the values towards
-    ``lights`` directions, and one child per ``(kind, component)``."""
+    """Which parts a hit wants besides the values towards the light
+    directions it passes: the diffuse albedo, and one child per
+    ``(kind, component)``."""
     albedo: bool
-    lights: int
     components: tuple
 
 
@@ -57,7 +57,7 @@ class BsdfTerms:
 def query_bsdf(bsdf: mi.BSDFPtr, si: mi.SurfaceInteraction3f, query: BsdfQuery,
                directions: list, active: mi.Bool) -> BsdfTerms:
     """Answer ``query`` at ``si`` (``directions``: local, one per light)."""
-    if not (query.albedo or query.lights or query.components):
+    if not (query.albedo or directions or query.components):
         return BsdfTerms(mi.Color3f(0), [], [])
     def answer(instance, si, directions, active):
         return _answer(instance, query, si, directions)

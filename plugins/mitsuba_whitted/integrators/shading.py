@@ -115,7 +115,6 @@ class HitShader:
         if work.spawn is not False:
             spawn = hit & work.spawn
         query = BsdfQuery(albedo=work.light is not False and self.lighting.use_ambient,
-                          lights=len(samples),
                           components=self.components if work.spawn is not False else ())
         terms = query_bsdf(bsdf, si, query, [si.to_local(ds.d) for ds, _ in samples],
                            light | spawn)
