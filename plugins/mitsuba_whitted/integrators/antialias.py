@@ -39,8 +39,6 @@ from ..mathutil import hammersley
 
 #: Offsets (dy, dx) of a pixel's 8 neighbours.
 NEIGHBOURS = tuple((dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx) != (0, 0))
-#: Quadrant centres of the unit cell, in the order children are stored.
-QUADRANTS = ((0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75))
 
 #: ``shade(positions, keys) -> (radiance, alpha)``: positions are in pixel
 #: units inside the crop window, keys identify samples for decorrelation.
@@ -84,7 +82,9 @@ def render_grid(width: int, height: int, n: int, shade: ShadeFn):
 
 
 def _quadrant_positions(origins: mi.Point2f, size: float) -> mi.Point2f:
-    """The four quadrant centres of each cell (lower corner ``origins``)."""
+    """The four quadrant centres of each cell (lower corner ``origins``),
+    cell by cell in the order (1/4, 1/4), (3/4, 1/4), (1/4, 3/4), (3/4, 3/4)
+    of its size: the order in which a cell's children are stored."""
     index = dr.arange(mi.UInt32, 4 * dr.width(origins))
     cell, quadrant = index // 4, index % 4
     corner = dr.gather(mi.Point2f, origins, cell)
