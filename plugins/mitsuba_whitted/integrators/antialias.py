@@ -129,7 +129,10 @@ class AdaptiveSampler:
                 break
             centres = dr.gather(mi.Point2f, positions, cells)
             pixel = mi.UInt32(centres.y) * width + mi.UInt32(centres.x)
-            dr.scatter_reduce(dr.ReduceOp.Add, count.per_pixel, mi.UInt32(4), pixel)
+            # A few thousand scattered adds: atomics on the map itself cost
+            # less than the per-thread copies Dr.Jit would make of it.
+            dr.scatter_reduce(dr.ReduceOp.Add, count.per_pixel, mi.UInt32(4), pixel,
+                              mode=dr.ReduceMode.Direct)
             origins = mi.Point2f(centres - opaque_float(size / 4))
             size *= 0.5
         count.levels = len(levels) - 1

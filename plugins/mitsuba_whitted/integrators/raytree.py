@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
+from ..camera import camera_rays
 from ..jit import index_range, sum_blocks, to_int
 from .frozen import FrozenKernel
 from .bsdf_query import KIND_CODES
@@ -100,6 +101,16 @@ class Tracer:
         scene and the rays."""
         self.stats = RayStats()
         self._kernel_inputs = self.refiner.tables() if self.refiner is not None else ()
+
+    def trace_camera(self, sensor: mi.Sensor, positions: mi.Point2f, keys: mi.UInt32):
+        """``trace`` of the camera rays through ``positions`` (pixel units
+        in the crop window)."""
+        ray, weight = camera_rays(sensor, positions)
+        return self.trace(RayBatch(ray.o, ray.d, mi.Color3f(weight), keys))
+
+    def statistics(self) -> dict:
+        """Rays traced since the last ``reload``, by kind."""
+        return self.stats.as_dict()
 
 
 class RayTreeTracer(Tracer):

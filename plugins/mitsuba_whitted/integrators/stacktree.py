@@ -40,6 +40,7 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
+from ..camera import camera_rays
 from .frozen import FrozenKernel
 from .raytree import RayBatch, Tracer
 from .bsdf_query import KIND_CODES
@@ -111,27 +112,54 @@ class StackTreeTracer(Tracer):
         super().__init__(shader, intersect, refiner)
         self.capacity = stack_capacity(shader.spawning_generations(), shader.fan_out)
         self._kernel = FrozenKernel(self._trace_kernel, "stack tracer")
+        self._camera_kernel = FrozenKernel(self._trace_camera_kernel, "stack tracer")
 
     @staticmethod
     def supports(shader: HitShader) -> bool:
         return stack_capacity(shader.spawning_generations(), shader.fan_out) <= MAX_STACK
 
+    def _start(self) -> None:
+        super()._start()
+        # Ray counts (``COUNTED``) and the deepest generation, kept on the
+        # device and added to inside the kernels: summing per-lane counts
+        # after each launch took 190 reductions per render.
+        self._counts = dr.zeros(mi.UInt32, len(COUNTED))
+        self._deepest = dr.zeros(mi.UInt32, 1)
+
     def trace(self, rays: RayBatch):
-        """Radiance and alpha (primary hit) of each camera ray."""
-        self.stats.camera += len(rays)
+        """Radiance and alpha (primary hit) of each ray."""
+        self._count_batch(len(rays))
+        return self._kernel(len(rays), self.shader.scene, self._kernel_inputs,
+                            self._counts, self._deepest, *rays.fields())
+
+    def trace_camera(self, sensor: mi.Sensor, positions: mi.Point2f, keys: mi.UInt32):
+        """Radiance and alpha of camera rays through ``positions``, made
+        inside the kernel (no ray arrays go through memory)."""
+        self._count_batch(dr.width(keys))
+        return self._camera_kernel(dr.width(keys), self.shader.scene, sensor,
+                                   self._kernel_inputs, self._counts, self._deepest,
+                                   positions, keys)
+
+    def _count_batch(self, rays: int) -> None:
+        self.stats.camera += rays
         self.stats.batches += 1
-        radiance, alpha, counts, deepest = self._kernel(
-            len(rays), self.shader.scene, self._kernel_inputs, *rays.fields())
-        for kind, count in counts.items():
-            setattr(self.stats, kind, getattr(self.stats, kind) + dr.sum(count))
-        # Kept on the device: reading it here would wait for the kernel.
-        self.stats.generations = dr.maximum(self.stats.generations, dr.max(deepest) + 1)
-        return radiance, alpha
+
+    def statistics(self) -> dict:
+        counts = self._counts.numpy()
+        for kind, count in zip(COUNTED, counts):
+            setattr(self.stats, kind, int(count))
+        self.stats.generations = int(self._deepest[0]) + 1 if self.stats.camera else 0
+        return super().statistics()
+
+    def _trace_camera_kernel(self, scene, sensor, inputs, counts, deepest, positions, keys):
+        ray, weight = camera_rays(sensor, positions)
+        return self._trace_kernel(scene, inputs, counts, deepest, ray.o, ray.d,
+                                  mi.Color3f(weight), keys)
 
     @dr.syntax
-    def _trace_kernel(self, scene, inputs, o, d, throughput, key):
-        """Radiance, alpha, per-lane ray counts by kind and the deepest
-        generation of each lane's tree."""
+    def _trace_kernel(self, scene, inputs, total_counts, total_deepest, o, d, throughput, key):
+        """Radiance and alpha of each ray; adds its tree's rays by kind to
+        ``total_counts`` and its deepest generation to ``total_deepest``."""
         stack = LaneStack.allocate(
             (mi.Point3f, mi.Vector3f, mi.Color3f, mi.UInt32, mi.UInt32), self.capacity)
         size = mi.UInt32(0)
@@ -144,7 +172,11 @@ class StackTreeTracer(Tracer):
         while live:
             size, ray, live, radiance, alpha, counts, deepest = self._visit(
                 stack, size, ray, radiance, alpha, counts, deepest)
-        return radiance, alpha, counts, deepest
+        # Integer sums and maxima: the same totals in any order.
+        for index, kind in enumerate(COUNTED):
+            dr.scatter_reduce(dr.ReduceOp.Add, total_counts, counts[kind], mi.UInt32(index))
+        dr.scatter_reduce(dr.ReduceOp.Max, total_deepest, deepest, mi.UInt32(0))
+        return radiance, alpha
 
     def _visit(self, stack, size, ray, radiance, alpha, counts, deepest):
         """Trace ``ray``: add its radiance, and go on with its last child

@@ -3,7 +3,6 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from ..camera import camera_rays
 from ..jit import index_range
 from ..errors import ParameterError, VariantError, check, check_choice
 from . import antialias
@@ -253,7 +252,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
             radiance, alpha, count = self._sample_pixels(width, height, shade)
             block = _image_block(film, radiance, alpha, channels)
         film.put_block(block)
-        stats = tracer.stats.as_dict()
+        stats = tracer.statistics()
         stats["aa_samples"] = count.samples
         stats["aa_per_level"] = count.per_level
         stats["aa_levels"] = count.levels
@@ -279,14 +278,13 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         in parts of at most ``wavefront_size`` rays."""
         def shade(positions: mi.Point2f, keys: mi.UInt32):
             total = dr.width(positions)
-            radiance = dr.zeros(mi.Color3f, total)
-            alpha = dr.zeros(mi.Float, total)
+            radiance = dr.empty(mi.Color3f, total)
+            alpha = dr.empty(mi.Float, total)
             for start in range(0, total, self.wavefront_size):
                 part = index_range(start, min(start + self.wavefront_size, total))
-                ray, weight = camera_rays(sensor, dr.gather(mi.Point2f, positions, part))
-                rays = RayBatch(ray.o, ray.d, mi.Color3f(weight),
-                                dr.gather(mi.UInt32, keys, part))
-                part_radiance, part_alpha = tracer.trace(rays)
+                part_radiance, part_alpha = tracer.trace_camera(
+                    sensor, dr.gather(mi.Point2f, positions, part),
+                    dr.gather(mi.UInt32, keys, part))
                 dr.scatter(radiance, part_radiance, part)
                 dr.scatter(alpha, part_alpha, part)
                 if self.progress is not None:
@@ -374,7 +372,7 @@ def _image_block(film: mi.Film, radiance: mi.Color3f, alpha: mi.Float, channels:
     if channels == 5:
         values.append(alpha)
     values.append(dr.ones(mi.Float, width * height))
-    data = dr.zeros(mi.Float, width * height * channels)
+    data = dr.empty(mi.Float, width * height * channels)
     base = dr.arange(mi.UInt32, width * height) * channels
     for index, value in enumerate(values):
         dr.scatter(data, value, base + index)
