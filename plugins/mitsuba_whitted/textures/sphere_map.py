@@ -9,7 +9,8 @@ import mitsuba as mi
 import numpy as np
 
 from ..errors import check_choice
-from .common import inverse_to_world, nested_texture, read_to_world, uv_remap_base
+from .common import (HiddenParameter, apply_rows, inverse_rows, nested_texture,
+                     read_to_world, uv_remap_base)
 
 PLUGIN_NAME = "sphere_map"
 
@@ -126,18 +127,17 @@ class SphereMap(uv_remap_base()):
         self.mapping = check_choice(props.get("mapping", "asin"), tuple(MAPPINGS),
                                     PLUGIN_NAME, "mapping")
         self.center = (mi.Point3f(props.get("center")) if "center" in props else None)
-        self.to_world = read_to_world(props)
+        self._to_world = HiddenParameter(read_to_world(props))
         self.parameters_changed([])
 
     def parameters_changed(self, keys=None):
-        self.to_local = inverse_to_world(self.to_world, PLUGIN_NAME)
-        dr.make_opaque(self.to_local)
+        self.to_local = inverse_rows(self._to_world.value, PLUGIN_NAME)
         if self.center is not None:
             dr.make_opaque(self.center)
 
     def direction(self, si: mi.SurfaceInteraction3f) -> mi.Vector3f:
         d = si.sh_frame.n if self.center is None else si.p - self.center
-        return self.to_local @ mi.Vector3f(d)
+        return apply_rows(self.to_local, d, translate=False)
 
     def remap_uv(self, si):
         return MAPPINGS[self.mapping](unit_direction(self.direction(si)))
@@ -146,7 +146,7 @@ class SphereMap(uv_remap_base()):
         self.traverse_texture(callback)
         if self.center is not None:
             callback.put("center", self.center, mi.ParamFlags.NonDifferentiable)
-        callback.put("to_world", self.to_world, mi.ParamFlags.NonDifferentiable)
+        callback.put("to_world", self._to_world.value, mi.ParamFlags.NonDifferentiable)
 
     def to_string(self):
         return (f"SphereMap[\n  mapping = {self.mapping},\n"

@@ -9,7 +9,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..errors import check
-from .common import inverse_to_world, read_to_world
+from .common import HiddenParameter, apply_rows, inverse_rows, read_to_world
 
 PLUGIN_NAME = "tartan"
 
@@ -86,23 +86,23 @@ class Tartan(mi.Texture):
               "variant such as llvm_ad_rgb")
         self.frequency = mi.Float(props.get("frequency", DEFAULT_FREQUENCY))
         self.color = mi.Color3f(props.get("color", mi.ScalarColor3f(DEFAULT_COLOR)))
-        self.to_world = read_to_world(props)
+        self._to_world = HiddenParameter(read_to_world(props))
         self.parameters_changed([])
 
     def parameters_changed(self, keys=None):
         check(dr.all(self.frequency > 0), PLUGIN_NAME, "frequency",
               f"must be > 0 (got {dr.slice(self.frequency, 0)})")
-        self.to_local = inverse_to_world(self.to_world, PLUGIN_NAME)
+        self.to_local = inverse_rows(self._to_world.value, PLUGIN_NAME)
         # Opaque: a new value must not bake a new constant into every kernel.
-        dr.make_opaque(self.frequency, self.color, self.to_local)
+        dr.make_opaque(self.frequency, self.color)
 
     def traverse(self, callback):
         callback.put("frequency", self.frequency, mi.ParamFlags.NonDifferentiable)
         callback.put("color", self.color, mi.ParamFlags.Differentiable)
-        callback.put("to_world", self.to_world, mi.ParamFlags.NonDifferentiable)
+        callback.put("to_world", self._to_world.value, mi.ParamFlags.NonDifferentiable)
 
     def eval(self, si, active=True):
-        p = self.to_local @ si.p
+        p = apply_rows(self.to_local, si.p, translate=True)
         in_square = ((dr.sin(self.frequency * p.x) > 0)
                      & (dr.cos(self.frequency * p.y) > 0))
         background = dr.clip(mi.Color3f(dr.sin(p.x), dr.sin(p.y), dr.sin(p.z)), 0.0, 1.0)
@@ -121,7 +121,7 @@ class Tartan(mi.Texture):
         return True
 
     def to_string(self):
-        to_world = str(self.to_world).replace("\n", "\n  ")
+        to_world = str(self._to_world.value).replace("\n", "\n  ")
         return (f"Tartan[\n  frequency = {dr.slice(self.frequency, 0)},\n"
                 f"  color = {np.ravel(self.color).tolist()},\n"
                 f"  to_world = {to_world}\n]")
