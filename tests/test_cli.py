@@ -1,5 +1,6 @@
 """The mitsuba-whitted command line, run as a user would."""
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -13,9 +14,10 @@ ROOT = Path(__file__).resolve().parent.parent
 SCENE = ROOT / "scenes" / "cosc363.xml"
 
 
-def cli(*args, check=True):
+def cli(*args, check=True, env=None):
     return subprocess.run([sys.executable, "-m", "mitsuba_whitted.cli", *args],
-                          capture_output=True, text=True, timeout=600, check=check, cwd=ROOT)
+                          capture_output=True, text=True, timeout=600, check=check, cwd=ROOT,
+                          env=env)
 
 
 def test_render_report_scene_small(tmp_path):
@@ -46,6 +48,20 @@ def test_scenes_load_with_the_same_registry_ids_in_every_process():
                               capture_output=True, text=True, check=True).stdout.splitlines()[-1]
                for _ in range(4)}
     assert len(outputs) == 1
+
+
+def test_a_second_process_compiles_nothing(tmp_path):
+    """The kernel cache helps only if every kernel comes out the same in each
+    process. The stack tracer's kernel makes the camera rays itself, so a
+    sensor value that differs per process baked into it (or registry ids
+    handed out in another order) would compile it anew on every run."""
+    env = dict(os.environ, HOME=str(tmp_path / "home"), XDG_CACHE_HOME=str(tmp_path / "cache"))
+    cached = tmp_path / "home" / ".drjit"
+    render = ("render", str(SCENE), "-o", str(tmp_path / "a.exr"), "-D", "res=16")
+    cli(*render, env=env)
+    first = set(cached.iterdir())
+    cli(*render, env=env)
+    assert first and set(cached.iterdir()) == first
 
 
 def test_png_is_the_srgb_encoding_of_the_exr(tmp_path):
