@@ -27,6 +27,7 @@ import pytest
 
 from conftest import assert_finite
 from mitsuba_whitted.geometry import cylinder
+from mitsuba_whitted.jit import ALIGNMENT
 from mitsuba_whitted.shapes import capped_cylinder
 from reference import cylinder_f64 as reference
 
@@ -402,6 +403,17 @@ def test_proxy_is_watertight_and_outward(segments):
     for i in range(3):
         assert np.all(np.einsum("ij,ij->i", face_normals, normals[faces[:, i]]) > 0)
     assert np.allclose(np.linalg.norm(normals, axis=1), 1, atol=1e-6)
+
+
+@pytest.mark.parametrize("segments", [3, 7, 64, 1000])
+def test_proxy_buffers_are_aligned_as_drjit_aligns_its_own(segments):
+    """Intersections gather from these buffers in every kernel; Dr.Jit emits
+    other code for an unaligned buffer, so a kernel would differ from process
+    to process (as NumPy's allocations fall) and miss the kernel cache."""
+    shape, *_ = world_placement(2.0, segments)
+    params = mi.traverse(shape)
+    for name in ("vertex_positions", "vertex_normals", "vertex_texcoords", "faces"):
+        assert np.from_dlpack(params[name]).ctypes.data % ALIGNMENT == 0, name
 
 
 def test_proxy_circumscribes_the_true_surface():

@@ -54,7 +54,8 @@ def test_a_second_process_compiles_nothing(tmp_path):
     """The kernel cache helps only if every kernel comes out the same in each
     process. The stack tracer's kernel makes the camera rays itself, so a
     sensor value that differs per process baked into it (or registry ids
-    handed out in another order) would compile it anew on every run."""
+    handed out in another order, or a mesh buffer whose alignment depends on
+    where NumPy allocated it) would compile it anew on every run."""
     env = dict(os.environ, HOME=str(tmp_path / "home"), XDG_CACHE_HOME=str(tmp_path / "cache"))
     cached = tmp_path / "home" / ".drjit"
     render = ("render", str(SCENE), "-o", str(tmp_path / "a.exr"), "-D", "res=16")

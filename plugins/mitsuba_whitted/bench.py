@@ -31,7 +31,6 @@ from pathlib import Path
 
 import drjit as dr
 import mitsuba as mi
-import numpy as np
 
 from . import load_file
 from .jit import timed
@@ -70,13 +69,13 @@ def time_render(scene: mi.Scene, integrator, repeats: int) -> RenderTiming:
 # ------------------------------------------------------------------ bound
 
 
-def _concatenate(batches, fields):
-    """One Dr.Jit array per field from a list of batches (via numpy)."""
-    arrays = []
-    for name, kind in fields:
-        parts = [np.array(getattr(batch, name)) for batch in batches]
-        arrays.append(kind(np.concatenate(parts, axis=-1)) if parts else kind())
-    return arrays
+def _joined(vector_type, parts: list):
+    """The 3-vectors of ``parts`` one after another, kept on the device (a
+    round trip through NumPy would hand the kernels memory of arbitrary
+    alignment, and so kernels that differ from process to process)."""
+    if not parts:
+        return vector_type()
+    return vector_type(*[dr.concat([part[axis] for part in parts]) for axis in range(3)])
 
 
 def shadow_rays_of(scene: mi.Scene, rays: mi.Ray3f, emitter_samples: int) -> mi.Ray3f:
@@ -93,14 +92,13 @@ def shadow_rays_of(scene: mi.Scene, rays: mi.Ray3f, emitter_samples: int) -> mi.
             ds, _ = emitter.sample_direction(si, u, smooth)
             ray = si.spawn_ray_to(ds.p)
             keep = dr.compress(smooth & (ds.pdf > 0))
-            origins.append(np.array(dr.gather(mi.Point3f, ray.o, keep)))
-            directions.append(np.array(dr.gather(mi.Vector3f, ray.d, keep)))
-            lengths.append(np.array(dr.gather(mi.Float, ray.maxt, keep)))
+            origins.append(dr.gather(mi.Point3f, ray.o, keep))
+            directions.append(dr.gather(mi.Vector3f, ray.d, keep))
+            lengths.append(dr.gather(mi.Float, ray.maxt, keep))
     if not origins:
         return mi.Ray3f()
-    ray = mi.Ray3f(mi.Point3f(np.concatenate(origins, axis=-1)),
-                   mi.Vector3f(np.concatenate(directions, axis=-1)))
-    ray.maxt = mi.Float(np.concatenate(lengths))
+    ray = mi.Ray3f(_joined(mi.Point3f, origins), _joined(mi.Vector3f, directions))
+    ray.maxt = dr.concat(lengths)
     return ray
 
 
@@ -118,8 +116,8 @@ class Bound:
 
 def ray_casting_bound(scene: mi.Scene, batches, emitter_samples: int, repeats: int) -> Bound:
     """Time of Mitsuba's own ray casting for the rays of one render."""
-    o, d = _concatenate(batches, [("o", mi.Point3f), ("d", mi.Vector3f)])
-    rays = mi.Ray3f(o, d)
+    rays = mi.Ray3f(_joined(mi.Point3f, [batch.o for batch in batches]),
+                    _joined(mi.Vector3f, [batch.d for batch in batches]))
     shadow = shadow_rays_of(scene, rays, emitter_samples)
     dr.eval(rays, shadow)
 
@@ -130,7 +128,7 @@ def ray_casting_bound(scene: mi.Scene, batches, emitter_samples: int, repeats: i
         dr.eval(scene.ray_test(shadow))
 
     timed(intersect, 1), timed(test, 1)  # compile
-    return Bound(dr.width(o), dr.width(shadow.o),
+    return Bound(dr.width(rays.o), dr.width(shadow.o),
                  statistics.median(timed(intersect, repeats)[1]),
                  statistics.median(timed(test, repeats)[1]))
 

@@ -11,6 +11,7 @@ import time
 
 import drjit as dr
 import mitsuba as mi
+import numpy as np
 
 
 def index_range(start: int, stop: int) -> "mi.UInt32":
@@ -30,6 +31,40 @@ def sum_blocks(values, block: int):
     # A component broadcast from width 1 would be returned unsummed:
     # adding full-width zeros gives every component the full width.
     return dr.block_sum(values + dr.zeros(type(values), dr.width(values)), block)
+
+
+#: The alignment of Dr.Jit's own allocations (``posix_memalign(64)``).
+ALIGNMENT = 64
+
+#: NumPy element type of each flat Dr.Jit array type.
+_NUMPY_TYPES = {dr.VarType.Float32: np.float32, dr.VarType.Float64: np.float64,
+                dr.VarType.UInt32: np.uint32, dr.VarType.Int32: np.int32,
+                dr.VarType.Bool: np.bool_}
+
+
+def device_array(array_type, values: np.ndarray):
+    """A flat Dr.Jit array holding ``values``, in memory Dr.Jit allocated.
+
+    On the LLVM backend, ``array_type(values)`` maps NumPy's memory instead
+    of copying it, and a plugin must not keep such an array:
+
+    - a frozen kernel recognises an array it reads through a virtual call
+      (a mesh's vertices, a texture's placement) only if Dr.Jit allocated
+      it; a mapped one is recorded as a fixed address, so a replay after a
+      parameter update reads the old buffer, or freed memory;
+    - the buffer is aligned only as NumPy happened to allocate it, and
+      Dr.Jit emits other code for an unaligned one, so kernels would differ
+      from process to process and miss the kernel cache.
+
+    The copy is a gather, whose code does not depend on the source's
+    alignment; its index is opaque, as Dr.Jit elides a gather by a plain
+    ``arange``. The caller may change ``values`` once this returns."""
+    flat = np.ascontiguousarray(values, dtype=_NUMPY_TYPES[dr.type_v(array_type)]).ravel()
+    mapped = array_type(flat)
+    owned = dr.gather(array_type, mapped, index_range(0, len(flat)))
+    dr.eval(owned)
+    dr.sync_thread()  # the copy runs asynchronously; ``flat`` must outlive it
+    return owned
 
 
 def to_int(value) -> int:

@@ -22,6 +22,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..geometry.cylinder import intersect_canonical
+from ..jit import device_array
 from .offsets import scene_scale, spawn_ray
 
 #: A ray crosses a missed proxy twice (in and out); four lets it pass two
@@ -60,9 +61,9 @@ class AnalyticRefiner:
             to_canonical[index] = _rows(shape.world_to_canonical_matrix())
             to_world[index] = _rows(shape.canonical_to_world_matrix())
             analytic[index] = True
-        self.to_canonical = self.F64(to_canonical.ravel())
-        self.to_world = self.F64(to_world.ravel())
-        self.analytic = mi.Bool(analytic)
+        self.to_canonical = device_array(self.F64, to_canonical)
+        self.to_world = device_array(self.F64, to_world)
+        self.analytic = device_array(mi.Bool, analytic)
         self.size = size
 
     def tables(self) -> tuple:

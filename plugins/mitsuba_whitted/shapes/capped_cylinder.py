@@ -6,6 +6,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..errors import ParameterError, check
+from ..jit import device_array
 from ..mathutil import invert_affine_f64
 
 PLUGIN_NAME = "capped_cylinder"
@@ -199,10 +200,10 @@ class CappedCylinder(mi.Mesh):
             # A mirroring placement reverses the winding; keep it outward.
             faces = faces[:, ::-1]
         params = mi.traverse(self)
-        params["vertex_positions"] = mi.Float(positions.ravel().astype(np.float32))
-        params["vertex_normals"] = mi.Float(normals.ravel().astype(np.float32))
-        params["vertex_texcoords"] = mi.Float(uv.ravel().astype(np.float32))
-        params["faces"] = mi.UInt32(np.ascontiguousarray(faces).ravel())
+        params["vertex_positions"] = device_array(mi.Float, positions)
+        params["vertex_normals"] = device_array(mi.Float, normals)
+        params["vertex_texcoords"] = device_array(mi.Float, uv)
+        params["faces"] = device_array(mi.UInt32, faces)
         params.update()
 
     def traverse(self, callback) -> None:

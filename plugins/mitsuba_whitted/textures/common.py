@@ -17,6 +17,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..errors import check
+from ..jit import device_array
 
 
 def read_to_world(props: mi.Properties) -> mi.AffineTransform4f:
@@ -40,7 +41,7 @@ def inverse_rows(to_world: mi.AffineTransform4f, plugin: str) -> mi.Float:
     matrix = to_world.inverse().matrix.numpy().reshape(4, 4)
     check(np.isfinite(matrix).all(), plugin, "to_world",
           "must be invertible (its matrix is singular)")
-    return mi.Float(np.ascontiguousarray(matrix[:3], dtype=np.float32).ravel())
+    return device_array(mi.Float, matrix[:3])
 
 
 def apply_rows(rows: mi.Float, v, translate: bool) -> mi.Vector3f:
