@@ -11,7 +11,10 @@ The bound: the rays of a render are replayed through Mitsuba's own
 ``scene.ray_intersect`` (camera, reflected and refracted rays) and
 ``scene.ray_test`` (shadow rays to the same lights from the same hits); the
 time those take is what a ray tracer on Mitsuba cannot beat, and
-bound / actual is the share of the render spent casting rays.
+bound / actual is the share of the render spent casting rays. The two are
+timed in alternating rounds (render, ``ray_intersect``, ``ray_test``) and
+the ratio is the median of the rounds' ratios, so that the machine's drift
+from minute to minute falls on both alike.
 """
 
 from __future__ import annotations
@@ -104,18 +107,32 @@ def shadow_rays_of(scene: mi.Scene, rays: mi.Ray3f, emitter_samples: int) -> mi.
 
 @dataclass
 class Bound:
+    """Mitsuba's ray casting for the rays of one render, timed in rounds
+    that alternate with renders: the ratio of each round compares the two
+    under the same conditions (on a shared machine either drifts by 10-20%
+    from one minute to the next)."""
     closest_rays: int
     shadow_rays: int
     intersect_seconds: float
     test_seconds: float
+    #: Median of the renders timed in the same rounds.
+    render_seconds: float
+    #: (ray_intersect + ray_test) / render of each round.
+    ratios: list
 
     @property
     def seconds(self) -> float:
         return self.intersect_seconds + self.test_seconds
 
+    @property
+    def ratio(self) -> float:
+        return statistics.median(self.ratios)
 
-def ray_casting_bound(scene: mi.Scene, batches, emitter_samples: int, repeats: int) -> Bound:
-    """Time of Mitsuba's own ray casting for the rays of one render."""
+
+def ray_casting_bound(scene: mi.Scene, batches, emitter_samples: int, render,
+                      repeats: int) -> Bound:
+    """Mitsuba's own ray casting for the rays in ``batches``, timed in
+    ``repeats`` rounds of ``render()``, ``ray_intersect``, ``ray_test``."""
     rays = mi.Ray3f(_joined(mi.Point3f, [batch.o for batch in batches]),
                     _joined(mi.Vector3f, [batch.d for batch in batches]))
     shadow = shadow_rays_of(scene, rays, emitter_samples)
@@ -127,10 +144,13 @@ def ray_casting_bound(scene: mi.Scene, batches, emitter_samples: int, repeats: i
     def test():
         dr.eval(scene.ray_test(shadow))
 
-    timed(intersect, 1), timed(test, 1)  # compile
-    return Bound(dr.width(rays.o), dr.width(shadow.o),
-                 statistics.median(timed(intersect, repeats)[1]),
-                 statistics.median(timed(test, repeats)[1]))
+    timed(intersect, 1), timed(test, 1), timed(render, 2)  # compile, record
+    rounds = [[timed(step, 1)[1][0] for step in (render, intersect, test)]
+              for _ in range(repeats)]
+    renders, intersects, tests = zip(*rounds)
+    return Bound(dr.width(rays.o), dr.width(shadow.o), statistics.median(intersects),
+                 statistics.median(tests), statistics.median(renders),
+                 [(a + b) / r for r, a, b in rounds])
 
 
 # -------------------------------------------------------- fresh processes
@@ -313,7 +333,7 @@ def run(settings: BenchSettings, report=print) -> dict:
     mi.render(scene, integrator=integrator)
     integrator.capture_rays = False
     bound = ray_casting_bound(scene, integrator.last_rays, integrator.emitter_samples,
-                              settings.repeats)
+                              lambda: mi.render(scene, integrator=integrator), settings.repeats)
     integrator.last_rays = None
 
     results = {
@@ -329,7 +349,8 @@ def run(settings: BenchSettings, report=print) -> dict:
         "aa_samples": timing.stats["aa_samples"],
         "bound": {"closest_hit_rays": bound.closest_rays, "shadow_rays": bound.shadow_rays,
                   "ray_intersect_s": bound.intersect_seconds, "ray_test_s": bound.test_seconds,
-                  "seconds": bound.seconds, "ratio": bound.seconds / timing.warm},
+                  "seconds": bound.seconds, "render_s": bound.render_seconds,
+                  "ratio": bound.ratio, "ratios": bound.ratios},
         "peak_rss_mib_this_process": peak_rss_mib(),
     }
     if settings.fresh_processes:
@@ -378,7 +399,9 @@ def format_table(results: dict) -> str:
         f"  bound: ray_intersect {bound['closest_hit_rays']:,} rays {bound['ray_intersect_s']:.3f} s"
         f" + ray_test {bound['shadow_rays']:,} rays {bound['ray_test_s']:.3f} s"
         f" = {bound['seconds']:.3f} s",
-        f"  bound / actual              {bound['ratio']:8.2f}",
+        f"  bound / actual              {bound['ratio']:8.2f}  (median of {len(bound['ratios'])}"
+        f" rounds of render, ray_intersect, ray_test: {min(bound['ratios']):.2f}"
+        f" to {max(bound['ratios']):.2f}; render {bound['render_s']:.3f} s in those rounds)",
         "  peak RSS: " + ", ".join(f"{res}^2 {mib:,.0f} MiB"
                                    for res, mib in results["peak_rss_mib"].items()),
         "  scaling (warm):",
