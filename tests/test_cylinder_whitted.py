@@ -12,6 +12,7 @@ import pytest
 from conftest import assert_finite
 from mitsuba_whitted.camera import camera_rays, pixel_centres
 from mitsuba_whitted.integrators.analytic import AnalyticRefiner
+from mitsuba_whitted.integrators.scene_ref import SceneRef
 from reference import cylinder_f64
 from scenes import camera, diffuse, floor, integrator, point_light, rgb, scene
 
@@ -67,7 +68,7 @@ def hits(description, refine: bool):
     ray, _ = camera_rays(sensor, pixel_centres(sensor.film()))
     if refine:
         shapes = [s for s in loaded.shapes() if hasattr(s, "world_to_canonical_matrix")]
-        si = AnalyticRefiner(loaded, shapes).intersect(mi.Ray3f(ray), mi.Bool(True))
+        si = AnalyticRefiner(SceneRef(loaded), shapes).intersect(mi.Ray3f(ray), mi.Bool(True))
     else:
         si = loaded.ray_intersect(mi.Ray3f(ray))
     return (np.array(si.is_valid()).reshape(SIZE, SIZE),
@@ -127,7 +128,7 @@ def test_against_float64_reference(where, distance):
     sensor_ = loaded.sensors()[0]
     ray, _ = camera_rays(sensor_, pixel_centres(sensor_.film()))
     shape = loaded.shapes()[0]
-    si = AnalyticRefiner(loaded, [shape]).intersect(mi.Ray3f(ray), mi.Bool(True))
+    si = AnalyticRefiner(SceneRef(loaded), [shape]).intersect(mi.Ray3f(ray), mi.Bool(True))
     inverse = shape.world_to_canonical_matrix()
     o = np.array(ray.o, dtype=np.float64).T
     d = np.array(ray.d, dtype=np.float64).T

@@ -1,5 +1,8 @@
 """The whitted integrator: shadows, depth, determinism, film, parameters."""
 
+import gc
+import weakref
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
@@ -8,6 +11,7 @@ import pytest
 import mitsuba_whitted
 from conftest import assert_finite
 from mitsuba_whitted.integrators.scene_needs import analyse
+from mitsuba_whitted.integrators.scene_ref import SceneRef
 from scenes import (camera, diffuse, floor, glass_scene, integrator, point_light, rgb, scene,
                     sphere)
 
@@ -308,3 +312,36 @@ def test_a_reused_integrator_follows_a_bsdf_whose_lobes_change():
                                integrator=mi.load_dict(integrator(max_depth=4))))
     assert not np.allclose(diffuse_image, fresh), "the switch must change the image"
     np.testing.assert_array_equal(switched, fresh)
+
+
+@pytest.mark.parametrize("max_depth", [10, -1], ids=["stack tracer", "wavefront tracer"])
+def test_a_rendered_scene_is_freed_when_dropped(max_depth):
+    """The integrator keeps its tracer for the next render, and the scene
+    keeps the integrator: a tracer holding the scene, or its frozen kernels
+    holding the tracer, would make a cycle through Mitsuba's references.
+    Such a scene stayed alive for good, and every later frozen call paid
+    for traversing it; left to Python's cycle collector, a tracer went at an
+    arbitrary moment, which crashed another render's tracing. So: dropping
+    the scene frees it and its tracer at once, and leaves no object of
+    Mitsuba or of this package to the collector."""
+    loaded = mi.load_dict(dict(glass_scene(), integrator=integrator(max_depth=max_depth)))
+    for _ in range(2):   # the second render replays the kept tracer
+        assert_finite(mi.render(loaded))
+    kept = weakref.ref(loaded.integrator())
+    gc.collect()
+    gc.disable()
+    gc.set_debug(gc.DEBUG_SAVEALL)
+    try:
+        del loaded
+        freed = kept() is None
+        gc.collect()
+        # Dr.Jit's freeze makes classes of its own for each frozen function,
+        # which only the collector frees; they hold the traced function
+        # (and its plain settings), but nothing of a scene.
+        left = [type(o).__qualname__ for o in gc.garbage
+                if isinstance(o, (mi.Object, SceneRef)) or hasattr(o, "scene_ref")]
+    finally:
+        gc.set_debug(0)
+        gc.garbage.clear()
+        gc.enable()
+    assert freed and not left, left

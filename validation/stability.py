@@ -29,6 +29,7 @@ import numpy as np
 import mitsuba_whitted
 from mitsuba_whitted.camera import camera_rays, pixel_centres
 from mitsuba_whitted.integrators.analytic import AnalyticRefiner
+from mitsuba_whitted.integrators.scene_ref import SceneRef
 
 #: Unit roundoff of float32: half an ulp of 1.
 U32 = 2.0 ** -24
@@ -139,7 +140,7 @@ def exact_cylinder_hits(scene: mi.Scene, o: np.ndarray, d: np.ndarray):
     whether the proxy itself was hit."""
     ray = _ray(o, d)
     shape = scene.shapes()[0]
-    si = AnalyticRefiner(scene, [shape]).intersect(ray, mi.Bool(True))
+    si = AnalyticRefiner(SceneRef(scene), [shape]).intersect(ray, mi.Bool(True))
     proxy = np.array(scene.ray_intersect(ray).is_valid())
     return (np.array(si.is_valid()), np.array(si.t, dtype=np.float64),
             np.array(si.n, dtype=np.float64).T, proxy)

@@ -24,6 +24,7 @@ import numpy as np
 from ..geometry.cylinder import intersect_canonical
 from ..jit import device_array
 from .offsets import scene_scale, spawn_ray
+from .scene_ref import ReadsScene, SceneRef
 
 #: A ray crosses a missed proxy twice (in and out); four lets it pass two
 #: overlapping proxies before giving up (and reporting the proxy hit).
@@ -39,13 +40,13 @@ def _rows(matrix: np.ndarray) -> list:
     return list(np.asarray(matrix, dtype=np.float64)[:3, :4].ravel())
 
 
-class AnalyticRefiner:
+class AnalyticRefiner(ReadsScene):
     """``intersect(ray, active)``: Mitsuba's intersection, with hits on
     analytic proxies replaced by the exact surface."""
 
-    def __init__(self, scene: mi.Scene, shapes: list):
-        self.scene = scene
-        self.scale = scene_scale(scene)
+    def __init__(self, scene_ref: SceneRef, shapes: list):
+        self.scene_ref = scene_ref
+        self.scale = scene_scale(scene_ref.get())
         self.shapes = shapes
         self.F64 = dr.float64_array_t(mi.Float)
         self.load_tables()

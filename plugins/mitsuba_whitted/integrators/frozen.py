@@ -11,6 +11,7 @@ result).
 from __future__ import annotations
 
 import gc
+import weakref
 from contextlib import contextmanager
 
 import drjit as dr
@@ -47,11 +48,24 @@ def widths_match(outputs, width: int) -> bool:
 
 
 class FrozenKernel:
-    """``kernel(width, *args, **kwargs)``: ``function``'s outputs, which
-    must be ``width`` wide. JIT data the function reads must come in through
-    its arguments (a frozen function sees nothing else)."""
+    """``kernel(width, *args, **kwargs)``: the outputs of ``method(*args,
+    *fixed, **kwargs)``, which must be ``width`` wide. JIT data the method
+    reads must come in through its arguments (a frozen function sees
+    nothing else).
 
-    def __init__(self, function, name: str):
+    ``method`` is a bound method of the object that keeps this kernel, held
+    weakly: a strong reference back would make a cycle, which only Python's
+    cycle collector frees, at whatever moment it happens to run, and
+    Mitsuba objects freed in the middle of another render's tracing crash
+    the process. Without the cycle, a scene and its tracer go as soon as
+    the last reference to them does."""
+
+    def __init__(self, method, name: str, *fixed):
+        weak = weakref.WeakMethod(method)
+
+        def function(*args, **kwargs):
+            return weak()(*args, *fixed, **kwargs)
+
         self.function = function
         self.name = name
         self.frozen = dr.freeze(function)

@@ -17,6 +17,7 @@ import mitsuba as mi
 from .bsdf_query import has_delta_lobe
 from .offsets import spawn_ray_to
 from .scene_needs import SceneNeeds
+from .scene_ref import ReadsScene, SceneRef
 
 #: Shadow rays cross at most this many pass-through surfaces.
 MAX_SHADOW_CROSSINGS = 16
@@ -46,11 +47,11 @@ def _unit_pair(key: mi.UInt32, salt: int):
     return mi.Float(a) * scale, mi.Float(b) * scale
 
 
-class ShadowTester:
+class ShadowTester(ReadsScene):
     """Transmittance of the segment from a hit to a point on a light."""
 
-    def __init__(self, scene: mi.Scene, needs: SceneNeeds, shadows: str, intersect):
-        self.scene = scene
+    def __init__(self, scene_ref: SceneRef, needs: SceneNeeds, shadows: str, intersect):
+        self.scene_ref = scene_ref
         self.needs = needs
         self.seed_mode = shadows == "seed"
         self.intersect = intersect

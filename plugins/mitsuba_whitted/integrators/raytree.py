@@ -81,6 +81,7 @@ class Tracer:
 
     def __init__(self, shader: HitShader, intersect, refiner=None):
         self.shader = shader
+        self.scene_ref = shader.scene_ref
         self.settings = shader.settings
         self.intersect = intersect
         self.refiner = refiner
@@ -152,7 +153,8 @@ class RayTreeTracer(Tracer):
         if not work.any() and generation > 0:
             return dr.zeros(mi.Color3f, len(rays)), None, None, None
         if work not in self._generation:
-            self._generation[work] = FrozenKernel(self._kernel_doing(work), "wavefront tracer")
+            self._generation[work] = FrozenKernel(self._generation_kernel, "wavefront tracer",
+                                                  work)
         local, alpha, shadow, refined, candidates = self._generation[work](
             len(rays), self.shader.scene, self._kernel_inputs, *rays.fields())
         local = dr.zeros(mi.Color3f, len(rays)) if local is None else local
@@ -164,11 +166,6 @@ class RayTreeTracer(Tracer):
             return local, alpha, None, None
         children, slots = self._compact(candidates)
         return local, alpha, children, slots
-
-    def _kernel_doing(self, work: HitWork):
-        def kernel(scene, inputs, o, d, throughput, key):
-            return self._generation_kernel(scene, inputs, o, d, throughput, key, work)
-        return kernel
 
     def _generation_kernel(self, scene, inputs, o, d, throughput, key, work: HitWork):
         """Everything one generation computes, as one traced function of its

@@ -17,6 +17,7 @@ from .bsdf_query import BsdfQuery, DeltaChild, query_bsdf
 from .lighting import DirectLighting
 from .offsets import spawn_ray
 from .scene_needs import SceneNeeds
+from .scene_ref import ReadsScene, SceneRef
 
 @dataclass
 class TreeSettings:
@@ -48,12 +49,12 @@ class Child:
     code: mi.UInt32
 
 
-class HitShader:
+class HitShader(ReadsScene):
     """Local radiance and delta children of hits."""
 
-    def __init__(self, scene: mi.Scene, needs: SceneNeeds, settings: TreeSettings,
+    def __init__(self, scene_ref: SceneRef, needs: SceneNeeds, settings: TreeSettings,
                  lighting: DirectLighting):
-        self.scene = scene
+        self.scene_ref = scene_ref
         self.needs = needs
         self.settings = settings
         self.lighting = lighting

@@ -12,6 +12,7 @@ from .raytree import RayBatch, RayTreeTracer
 from .shading import HitShader, TreeSettings
 from .stacktree import StackTreeTracer
 from .scene_needs import SceneNeeds, analyse
+from .scene_ref import SceneRef, identity
 
 PLUGIN_NAME = "whitted"
 
@@ -202,29 +203,33 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         stack tracer where its stack is deep enough, else (or when asked,
         e.g. to capture each generation's rays) the wavefront tracer."""
         needs = needs or analyse(scene)
-        refiner = AnalyticRefiner(scene, needs.analytic_shapes) if needs.analytic_shapes else None
-        intersect = refiner.intersect if refiner else _plain_intersect(scene)
-        shadows = ShadowTester(scene, needs, self.shadows, intersect)
+        scene_ref = SceneRef(scene)
+        refiner = (AnalyticRefiner(scene_ref, needs.analytic_shapes)
+                   if needs.analytic_shapes else None)
+        intersect = refiner.intersect if refiner else _plain_intersect(scene_ref)
+        shadows = ShadowTester(scene_ref, needs, self.shadows, intersect)
         lighting = DirectLighting(
             needs, LightingSettings(self.ambient, self.emitter_samples, seed),
             shadows)
         depth = UNBOUNDED_DEPTH if self.max_depth == -1 else self.max_depth
         settings = TreeSettings(depth, self.min_throughput, self.hide_emitters,
                                 self.wavefront_size)
-        shader = HitShader(scene, needs, settings, lighting)
+        shader = HitShader(scene_ref, needs, settings, lighting)
         if not wavefront and StackTreeTracer.supports(shader):
             return StackTreeTracer(shader, intersect, refiner)
         return RayTreeTracer(shader, intersect, refiner)
 
     def _tracer_for(self, scene: mi.Scene, seed: int):
         """The last render's tracer if nothing it was built from changed
-        (the scene object, what the scene needs, the seed, this
+        (the scene's objects, what the scene needs, the seed, this
         integrator's parameters), so that its frozen kernels replay rather
         than being recorded again; else a new one. Scene data the kernels
         read (parameters updated through ``mi.traverse``) reach them as
-        arguments either way."""
+        arguments either way. The tracer reads ``scene`` only while
+        ``render`` holds it in the tracer's ``scene_ref``."""
         needs = analyse(scene)
-        built_from = (scene, needs, seed, self.capture_rays, self._parameter_values())
+        built_from = (identity(scene), needs, seed, self.capture_rays,
+                      self._parameter_values())
         if self._last.built_from == built_from:
             self._last.tracer.reload()
             return self._last.tracer
@@ -247,7 +252,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         tracer = self._tracer_for(scene, int(seed))
         tracer.captured = [] if self.capture_rays else None
         width, height = film.crop_size()
-        with dr.suspend_grad():
+        with dr.suspend_grad(), tracer.scene_ref.holding(scene):
             shade = self._camera_shader(tracer, sensor)
             radiance, alpha, count = self._sample_pixels(width, height, shade)
             block = _image_block(film, radiance, alpha, channels)
@@ -351,9 +356,9 @@ def _require_supported_variant():
             f"'{variant}'); use 'llvm_ad_rgb' or 'cuda_ad_rgb'.")
 
 
-def _plain_intersect(scene: mi.Scene):
+def _plain_intersect(scene_ref: SceneRef):
     def intersect(ray: mi.Ray3f, active: mi.Bool) -> mi.SurfaceInteraction3f:
-        return scene.ray_intersect(ray, active)
+        return scene_ref.get().ray_intersect(ray, active)
     return intersect
 
 
