@@ -20,3 +20,9 @@ def assert_finite(image) -> None:
     values = image.numpy() if hasattr(image, "numpy") else image
     import numpy as np
     assert np.isfinite(values).all(), f"{np.size(values) - np.isfinite(values).sum()} non-finite values"
+
+
+def address(array) -> int:
+    """Where a flat LLVM array's memory is (NumPy views it without a copy)."""
+    import numpy as np
+    return np.from_dlpack(array).ctypes.data

@@ -25,7 +25,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from conftest import assert_finite
+from conftest import address, assert_finite
 from mitsuba_whitted.geometry import cylinder
 from mitsuba_whitted.jit import ALIGNMENT
 from mitsuba_whitted.shapes import capped_cylinder
@@ -413,7 +413,7 @@ def test_proxy_buffers_are_aligned_as_drjit_aligns_its_own(segments):
     shape, *_ = world_placement(2.0, segments)
     params = mi.traverse(shape)
     for name in ("vertex_positions", "vertex_normals", "vertex_texcoords", "faces"):
-        assert np.from_dlpack(params[name]).ctypes.data % ALIGNMENT == 0, name
+        assert address(params[name]) % ALIGNMENT == 0, name
 
 
 def test_proxy_circumscribes_the_true_surface():

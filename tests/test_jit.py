@@ -5,6 +5,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
+from conftest import address
 from mitsuba_whitted.jit import ALIGNMENT, device_array, sum_blocks
 
 
@@ -22,11 +23,6 @@ def test_sum_blocks_matches_numpy_and_repeats_exactly(block):
 def test_sum_blocks_of_integers_is_exact():
     counts = dr.arange(mi.UInt32, 12)
     assert list(sum_blocks(counts, 4)) == [6, 22, 38]
-
-
-def address(array) -> int:
-    """Where a flat LLVM array's memory is."""
-    return np.from_dlpack(array).ctypes.data
 
 
 @pytest.mark.parametrize("array_type, dtype", [(mi.Float, np.float32), (mi.UInt32, np.uint32),
