@@ -283,17 +283,22 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         in parts of at most ``wavefront_size`` rays."""
         def shade(positions: mi.Point2f, keys: mi.UInt32):
             total = dr.width(positions)
-            radiance = dr.empty(mi.Color3f, total)
-            alpha = dr.empty(mi.Float, total)
+            radiance, alpha = dr.empty(mi.Color3f, total), dr.empty(mi.Float, total)
             for start in range(0, total, self.wavefront_size):
-                part = index_range(start, min(start + self.wavefront_size, total))
-                part_radiance, part_alpha = tracer.trace_camera(
-                    sensor, dr.gather(mi.Point2f, positions, part),
-                    dr.gather(mi.UInt32, keys, part))
-                dr.scatter(radiance, part_radiance, part)
-                dr.scatter(alpha, part_alpha, part)
+                stop = min(start + self.wavefront_size, total)
+                if stop - start == total:
+                    # The whole batch in one part (every adaptive level after
+                    # the first): no copies in and out.
+                    radiance, alpha = tracer.trace_camera(sensor, positions, keys)
+                else:
+                    part = index_range(start, stop)
+                    part_radiance, part_alpha = tracer.trace_camera(
+                        sensor, dr.gather(mi.Point2f, positions, part),
+                        dr.gather(mi.UInt32, keys, part))
+                    dr.scatter(radiance, part_radiance, part)
+                    dr.scatter(alpha, part_alpha, part)
                 if self.progress is not None:
-                    self.progress(start + dr.width(part), total, "camera samples")
+                    self.progress(stop, total, "camera samples")
             dr.eval(radiance, alpha)
             return radiance, alpha
 
