@@ -9,7 +9,7 @@ from conftest import address
 from mitsuba_whitted.jit import ALIGNMENT, device_array, sum_blocks
 
 
-@pytest.mark.parametrize("block", [1, 4, 64, 1024])
+@pytest.mark.parametrize("block", [1, 4, 16, 17, 64, 1024])
 def test_sum_blocks_matches_numpy_and_repeats_exactly(block):
     values = np.random.default_rng(block).uniform(size=3 * block * 50).astype(np.float32)
     colours = mi.Color3f(mi.Float(values[0::3]), mi.Float(values[1::3]), 0.5)

@@ -9,7 +9,8 @@ kernel cache as it is and once with an empty one.
 
 The bound: the rays of a render are replayed through Mitsuba's own
 ``scene.ray_intersect`` (camera, reflected and refracted rays) and
-``scene.ray_test`` (shadow rays to the same lights from the same hits); the
+``scene.ray_test`` (shadow rays to the same lights from the same hits), each
+in whichever of Embree's coherent and incoherent modes is the faster; the
 time those take is what a ray tracer on Mitsuba cannot beat, and
 bound / actual is the share of the render spent casting rays. The two are
 timed in alternating rounds (render, ``ray_intersect``, ``ray_test``) and
@@ -115,6 +116,9 @@ class Bound:
     shadow_rays: int
     intersect_seconds: float
     test_seconds: float
+    #: Whether Embree's coherent mode was the faster for each call.
+    intersect_coherent: bool
+    test_coherent: bool
     #: Median of the renders timed in the same rounds.
     render_seconds: float
     #: (ray_intersect + ray_test) / render of each round.
@@ -129,28 +133,40 @@ class Bound:
         return statistics.median(self.ratios)
 
 
+def _faster_mode(cast) -> bool:
+    """Whether ``cast(coherent)`` runs faster with Embree's coherent mode
+    (the median of three calls in each mode, after one to compile)."""
+    times = {}
+    for coherent in (False, True):
+        times[coherent] = statistics.median(timed(lambda: cast(coherent), 4)[1][1:])
+    return times[True] < times[False]
+
+
 def ray_casting_bound(scene: mi.Scene, batches, emitter_samples: int, render,
                       repeats: int) -> Bound:
     """Mitsuba's own ray casting for the rays in ``batches``, timed in
-    ``repeats`` rounds of ``render()``, ``ray_intersect``, ``ray_test``."""
+    ``repeats`` rounds of ``render()``, ``ray_intersect``, ``ray_test``,
+    each call in whichever of Embree's coherent and incoherent modes is the
+    faster for these rays (the integrator uses both)."""
     rays = mi.Ray3f(_joined(mi.Point3f, [batch.o for batch in batches]),
                     _joined(mi.Vector3f, [batch.d for batch in batches]))
     shadow = shadow_rays_of(scene, rays, emitter_samples)
     dr.eval(rays, shadow)
 
-    def intersect():
-        dr.eval(scene.ray_intersect(rays))
+    def intersect_in(coherent):
+        dr.eval(scene.ray_intersect(rays, mi.RayFlags.All, coherent))
 
-    def test():
-        dr.eval(scene.ray_test(shadow))
+    def test_in(coherent):
+        dr.eval(scene.ray_test(shadow, coherent))
 
-    timed(intersect, 1), timed(test, 1), timed(render, 2)  # compile, record
-    rounds = [[timed(step, 1)[1][0] for step in (render, intersect, test)]
-              for _ in range(repeats)]
+    intersect_coherent, test_coherent = _faster_mode(intersect_in), _faster_mode(test_in)
+    steps = (render, lambda: intersect_in(intersect_coherent), lambda: test_in(test_coherent))
+    timed(render, 2)  # record
+    rounds = [[timed(step, 1)[1][0] for step in steps] for _ in range(repeats)]
     renders, intersects, tests = zip(*rounds)
     return Bound(dr.width(rays.o), dr.width(shadow.o), statistics.median(intersects),
-                 statistics.median(tests), statistics.median(renders),
-                 [(a + b) / r for r, a, b in rounds])
+                 statistics.median(tests), intersect_coherent, test_coherent,
+                 statistics.median(renders), [(a + b) / r for r, a, b in rounds])
 
 
 # -------------------------------------------------------- fresh processes
@@ -360,6 +376,8 @@ def headline(scene_path: Path, settings: BenchSettings, report) -> dict:
         "aa_samples": timing.stats["aa_samples"],
         "bound": {"closest_hit_rays": bound.closest_rays, "shadow_rays": bound.shadow_rays,
                   "ray_intersect_s": bound.intersect_seconds, "ray_test_s": bound.test_seconds,
+                  "ray_intersect_coherent": bound.intersect_coherent,
+                  "ray_test_coherent": bound.test_coherent,
                   "seconds": bound.seconds, "render_s": bound.render_seconds,
                   "ratio": bound.ratio, "ratios": bound.ratios},
         "peak_rss_mib_this_process": peak_rss_mib(),
@@ -392,6 +410,10 @@ def run(settings: BenchSettings, report=print) -> dict:
     return results
 
 
+def _mode(coherent: bool) -> str:
+    return "coherent" if coherent else "incoherent"
+
+
 def format_table(results: dict) -> str:
     """The benchmark as a plain-text table."""
     rays = results["rays"]
@@ -415,8 +437,9 @@ def format_table(results: dict) -> str:
         "  rays: " + ", ".join(f"{k} {v:,}" for k, v in rays.items()),
         f"  rays/s                      {results['rays_per_second'] / 1e6:8.2f} M",
         f"  bound: ray_intersect {bound['closest_hit_rays']:,} rays {bound['ray_intersect_s']:.3f} s"
+        f" ({_mode(bound['ray_intersect_coherent'])})"
         f" + ray_test {bound['shadow_rays']:,} rays {bound['ray_test_s']:.3f} s"
-        f" = {bound['seconds']:.3f} s",
+        f" ({_mode(bound['ray_test_coherent'])}) = {bound['seconds']:.3f} s",
         f"  bound / actual              {bound['ratio']:8.2f}  (median of {len(bound['ratios'])}"
         f" rounds of render, ray_intersect, ray_test: {min(bound['ratios']):.2f}"
         f" to {max(bound['ratios']):.2f}; render {bound['render_s']:.3f} s in those rounds)",

@@ -77,8 +77,9 @@ class AnalyticRefiner(ReadsScene):
         return inside & dr.gather(mi.Bool, self.analytic, index, inside)
 
     @dr.syntax
-    def intersect(self, ray: mi.Ray3f, active: mi.Bool) -> mi.SurfaceInteraction3f:
-        si = self.scene.ray_intersect(ray, active)
+    def intersect(self, ray: mi.Ray3f, active: mi.Bool,
+                  coherent: bool = False) -> mi.SurfaceInteraction3f:
+        si = self.scene.ray_intersect(ray, mi.RayFlags.All, coherent, active)
         pending = self.on_proxy(si, active)
         # ``current`` only finds the next proxy behind a missed one; the exact
         # test always uses the original ray, so offsets taken to leave a

@@ -103,6 +103,11 @@ class Tracer:
         self.stats = RayStats()
         self._kernel_inputs = self.refiner.tables() if self.refiner is not None else ()
 
+    @property
+    def camera_batch(self) -> int:
+        """Most camera samples given to ``trace_camera`` at once."""
+        return self.settings.wavefront_size
+
     def trace_camera(self, sensor: mi.Sensor, positions: mi.Point2f, keys: mi.UInt32):
         """``trace`` of the camera rays through ``positions`` (pixel units
         in the crop window)."""
@@ -177,7 +182,7 @@ class RayTreeTracer(Tracer):
         would be constants are returned as ``None``: a constant carries the
         size of the call that recorded it and would come back wrong."""
         ray = mi.Ray3f(o, d)
-        si = self.intersect(ray, mi.Bool(True))
+        si = self.intersect(ray, mi.Bool(True), coherent=True)
         # Materialising the hit first lets the BSDF and emitter calls below
         # dispatch on evaluated pointers (measured ~30% faster shading).
         dr.eval(si)

@@ -94,8 +94,9 @@ class WhittedIntegrator(mi.SamplingIntegrator):
          pixel, with a warning. (Default: 64)
      * - wavefront_size
        - |int|
-       - Most camera samples traced in one kernel launch (and, in the
-         wavefront tracer, most rays of one generation); wider batches are
+       - Most rays of one generation in the wavefront tracer; the stack
+         tracer, which keeps far less per ray outside its kernel, launches
+         up to 8 times as many camera samples at once. Wider batches are
          split so memory stays bounded. (Default: 262144)
 
     Whitted (1980) ray tracing for any Mitsuba scene. At each hit the
@@ -280,12 +281,12 @@ class WhittedIntegrator(mi.SamplingIntegrator):
 
     def _camera_shader(self, tracer, sensor: mi.Sensor):
         """``shade(positions, keys)``: trace camera rays through crop pixels,
-        in parts of at most ``wavefront_size`` rays."""
+        in parts of at most the tracer's ``camera_batch`` rays."""
         def shade(positions: mi.Point2f, keys: mi.UInt32):
             total = dr.width(positions)
             radiance, alpha = dr.empty(mi.Color3f, total), dr.empty(mi.Float, total)
-            for start in range(0, total, self.wavefront_size):
-                stop = min(start + self.wavefront_size, total)
+            for start in range(0, total, tracer.camera_batch):
+                stop = min(start + tracer.camera_batch, total)
                 if stop - start == total:
                     # The whole batch in one part (every adaptive level after
                     # the first): no copies in and out.
@@ -362,8 +363,17 @@ def _require_supported_variant():
 
 
 def _plain_intersect(scene_ref: SceneRef):
-    def intersect(ray: mi.Ray3f, active: mi.Bool) -> mi.SurfaceInteraction3f:
-        return scene_ref.get().ray_intersect(ray, active)
+    """``intersect(ray, active, coherent)``: Mitsuba's own intersection.
+
+    The tracers pass ``coherent=True`` for the rays of a ray tree (Embree's
+    packet traversal): camera rays, and the mirror and refracted rays of
+    Whitted's smooth surfaces, stay coherent. That took 10% off the
+    report's scene (1200^2, pixel centres) and about 20% off the mirror and
+    cylinder case scenes (1024^2); shadow rays are faster in the incoherent
+    mode."""
+    def intersect(ray: mi.Ray3f, active: mi.Bool,
+                  coherent: bool = False) -> mi.SurfaceInteraction3f:
+        return scene_ref.get().ray_intersect(ray, mi.RayFlags.All, coherent, active)
     return intersect
 
 
