@@ -259,6 +259,19 @@ def test_contrast_budget_takes_fewer_points_with_a_warning():
     assert np.isfinite(np.array(radiance)).all()
 
 
+@pytest.mark.parametrize("sampler", [AdaptiveSampler(0.0, 3, 400.0, warn=pytest.fail),
+                                     ContrastSampler(0.0, 4, 64.0, warn=pytest.fail)],
+                         ids=["adaptive", "contrast"])
+def test_a_channel_the_shader_broadcasts_is_refined_like_the_others(sampler):
+    """noise_shader's blue channel is one value for all samples (width 1):
+    refined pixels are scattered into it, so it must come back full width
+    and hold that value (a scatter into the width-1 array wrote past it)."""
+    radiance, _, count = sampler.render(16, 16, noise_shader)
+    assert count.samples > 4 * 16 * 16
+    assert dr.width(radiance.z) == 16 * 16
+    assert np.array_equal(np.array(radiance.z), np.full(16 * 16, 0.5, np.float32))
+
+
 def test_contrast_render_of_a_scene_refines_only_silhouettes():
     """An emitting square on black: flat pixels away from its border keep
     their single centre sample; the same render twice is bit-identical."""

@@ -34,7 +34,7 @@ from typing import Callable
 import drjit as dr
 import mitsuba as mi
 
-from ..jit import index_range, opaque_float, sum_blocks
+from ..jit import full_width, index_range, opaque_float, read_runs, sum_blocks
 from ..mathutil import hammersley
 
 #: Offsets (dy, dx) of a pixel's 8 neighbours.
@@ -56,6 +56,15 @@ class SampleCount:
     per_pixel: object = None
 
 
+def _traced(shade: ShadeFn, positions: mi.Point2f, keys: mi.UInt32) -> tuple:
+    """``shade``'s radiance and alpha, every component full width: the
+    samplers scatter refined values into them, and a scatter into a
+    component broadcast from width 1 (a shader returning ``Color3f(r, g,
+    0.5)``) writes past its one entry and corrupts the heap."""
+    radiance, alpha = shade(positions, keys)
+    return full_width(radiance), full_width(alpha)
+
+
 def _grid_positions(width: int, height: int, n: int):
     """Centres of an n x n grid in every pixel, pixel-major."""
     index = dr.arange(mi.UInt32, width * height * n * n)
@@ -74,7 +83,7 @@ def _block_means(radiance: mi.Color3f, alpha: mi.Float, block: int) -> tuple:
 def render_grid(width: int, height: int, n: int, shade: ShadeFn):
     """Box-filtered pixels from n x n stratified samples (n = 1: centres)."""
     positions = _grid_positions(width, height, n)
-    radiance, alpha = shade(positions, dr.arange(mi.UInt32, dr.width(positions)))
+    radiance, alpha = _traced(shade, positions, dr.arange(mi.UInt32, dr.width(positions)))
     count = SampleCount(dr.width(positions), 0, (dr.width(positions),))
     if n == 1:
         return radiance, alpha, count
@@ -94,11 +103,22 @@ def _quadrant_positions(origins: mi.Point2f, size: float) -> mi.Point2f:
 
 
 def _differs(colors: mi.Color3f, threshold: float) -> mi.Bool:
-    """Per quadrant: whether it differs from the mean of its 3 siblings."""
-    clamped = dr.clip(colors, 0.0, 1.0)
-    total = dr.repeat(sum_blocks(clamped, 4), 4)
-    others = (total - clamped) / 3.0
-    return dr.max(dr.abs(clamped - others)) > threshold
+    """Per quadrant: whether it differs from the mean of its 3 siblings.
+
+    Worked out per cell, whose four quadrants are read as one packet per
+    channel, and handed to the quadrants as a 4-bit code: a third of the
+    time of per-quadrant lanes each gathering its siblings (2.2 ms on the
+    first level of the report's scene)."""
+    worst = [mi.Float(0)] * 4
+    for channel in range(3):
+        quadrants = [dr.clip(value, 0.0, 1.0) for value in read_runs(colors[channel], 4)]
+        total = ((quadrants[0] + quadrants[1]) + quadrants[2]) + quadrants[3]
+        worst = [dr.maximum(w, dr.abs(q - (total - q) / 3.0)) for w, q in zip(worst, quadrants)]
+    code = mi.UInt32(0)
+    for quadrant, difference in enumerate(worst):
+        code |= dr.select(difference > threshold, mi.UInt32(1 << quadrant), 0)
+    quadrant = dr.arange(mi.UInt32, dr.width(colors))
+    return (dr.gather(mi.UInt32, code, quadrant >> 2) & (1 << (quadrant & 3))) != 0
 
 
 class AdaptiveSampler:
@@ -120,7 +140,7 @@ class AdaptiveSampler:
         while True:
             positions = _quadrant_positions(origins, size)
             keys = index_range(count.samples, count.samples + dr.width(positions))
-            radiance, alpha = shade(positions, keys)
+            radiance, alpha = _traced(shade, positions, keys)
             count.samples += dr.width(positions)
             count.per_level += (dr.width(positions),)
             cells = self._cells_to_split(radiance, len(levels), count, budget)
@@ -204,7 +224,7 @@ class ContrastSampler:
 
     def render(self, width: int, height: int, shade: ShadeFn):
         pixels = width * height
-        radiance, alpha = shade(_grid_positions(width, height, 1),
+        radiance, alpha = _traced(shade, _grid_positions(width, height, 1),
                                 dr.arange(mi.UInt32, pixels))
         count = SampleCount(pixels, 0, (pixels,), per_pixel=dr.full(mi.UInt32, 1, pixels))
         contrast = neighbourhood_contrast(radiance, alpha, width, height)
@@ -214,7 +234,7 @@ class ContrastSampler:
         samples = self._samples_within_budget(dr.width(refined), pixels)
         positions = _pattern_positions(refined, width, samples)
         keys = index_range(pixels, pixels + dr.width(positions))
-        fine_radiance, fine_alpha = shade(positions, keys)
+        fine_radiance, fine_alpha = _traced(shade, positions, keys)
         fine_radiance, fine_alpha = _block_means(fine_radiance, fine_alpha, samples)
         dr.scatter(radiance, fine_radiance, refined)
         dr.scatter(alpha, fine_alpha, refined)
