@@ -133,9 +133,12 @@ class StackTreeTracer(Tracer):
         super()._start()
         # Ray counts (``COUNTED``) and the deepest generation, kept on the
         # device and added to inside the kernels: summing per-lane counts
-        # after each launch took 190 reductions per render.
-        self._counts = dr.zeros(mi.UInt32, len(COUNTED))
-        self._deepest = dr.zeros(mi.UInt32, 1)
+        # after each launch took 190 reductions per render. Opaque from the
+        # start: zeros would be a literal in the first launch and memory in
+        # the next, and Dr.Jit records a frozen kernel anew when an input
+        # changes so (30 ms more for the first render).
+        self._counts = dr.opaque(mi.UInt32, 0, len(COUNTED))
+        self._deepest = dr.opaque(mi.UInt32, 0, 1)
 
     def trace(self, rays: RayBatch):
         """Radiance and alpha (primary hit) of each ray."""
