@@ -117,6 +117,9 @@ def _differs(colors: mi.Color3f, threshold: float) -> mi.Bool:
     code = mi.UInt32(0)
     for quadrant, difference in enumerate(worst):
         code |= dr.select(difference > threshold, mi.UInt32(1 << quadrant), 0)
+    # Evaluated once per cell: Dr.Jit would otherwise fold the gather below
+    # into the expression and work it out four times, once per quadrant.
+    dr.eval(code)
     quadrant = dr.arange(mi.UInt32, dr.width(colors))
     return (dr.gather(mi.UInt32, code, quadrant >> 2) & (1 << (quadrant & 3))) != 0
 
