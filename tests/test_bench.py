@@ -18,7 +18,7 @@ def test_bench_quick_writes_every_figure(tmp_path):
                             cwd=ROOT)
     assert result.returncode == 0, result.stderr
     figures = json.loads(out.read_text())
-    for key in ("warm_render_s", "first_render_in_process_s", "second_render_in_process_s",
+    for key in ("machine", "warm_render_s", "first_render_in_process_s", "second_render_in_process_s",
                 "rays", "rays_per_second", "bound", "fresh_process", "fresh_process_empty_cache", "peak_rss_mib",
                 "scaling", "equal_error"):
         assert key in figures, key
@@ -30,6 +30,8 @@ def test_bench_quick_writes_every_figure(tmp_path):
     bound = figures["bound"]
     assert 0 < bound["ratio"] == statistics.median(bound["ratios"])
     assert bound["render_s"] > 0 and len(bound["ratios"]) >= 2
+    assert isinstance(bound["ray_intersect_coherent"], bool)
+    assert isinstance(bound["ray_test_coherent"], bool)
     assert {row["parameter"] for row in figures["scaling"]} == {"res", "max_depth", "aa_max_depth"}
     assert all(row["seconds"] > 0 for row in figures["scaling"])
     assert all(mib > 0 for mib in figures["peak_rss_mib"].values())

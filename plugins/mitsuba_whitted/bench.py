@@ -38,6 +38,7 @@ import mitsuba as mi
 
 from . import load_file
 from .jit import timed
+from .compare.scene_report import machine
 from .compare.sweep import CONTRAST_AA, RELATION_PREFIX, speedup_text
 
 DEFAULT_SCENE = Path(__file__).resolve().parents[2] / "scenes" / "cosc363.xml"
@@ -407,7 +408,7 @@ def headline(scene_path: Path, settings: BenchSettings, report) -> dict:
 def run(settings: BenchSettings, report=print) -> dict:
     """All measurements; ``report`` receives progress lines."""
     scene_path = Path(settings.scene)
-    results = headline(scene_path, settings, report)
+    results = {"machine": machine(), **headline(scene_path, settings, report)}
     release_scenes()
     if settings.fresh_processes:
         report("fresh processes (warm and empty kernel cache) ...")
@@ -440,6 +441,7 @@ def format_table(results: dict) -> str:
     bound = results["bound"]
     width, height = results["resolution"]
     lines = [
+        f"machine: {results['machine']}",
         f"scene {results['scene']} at {width}x{height} {results['defines']}",
         f"  warm render (median)        {results['warm_render_s']:8.3f} s",
         f"  first render in process     {results['first_render_in_process_s']:8.3f} s"

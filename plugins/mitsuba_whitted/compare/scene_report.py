@@ -132,9 +132,22 @@ def _first_whitted(points):
 def machine() -> str:
     import drjit as dr
 
-    return (f"{platform.machine()}, {platform.system()} {platform.release()}, "
+    return (f"{platform.machine()} ({_cpu_model()}), {platform.system()} {platform.release()}, "
             f"{_cpu_count()} CPU cores; Python {platform.python_version()}, "
             f"mitsuba {mi.__version__}, drjit {dr.__version__}, variant {mi.variant()}")
+
+
+def _cpu_model() -> str:
+    """The processor's name (Linux), which timings depend on as much as on
+    the core count; "unknown CPU" where the system does not say."""
+    try:
+        with open("/proc/cpuinfo") as info:
+            for line in info:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return "unknown CPU"
 
 
 def _cpu_count() -> int:
