@@ -24,8 +24,8 @@ def opaque_float(value: float) -> "mi.Float":
     return dr.opaque(mi.Float, value)
 
 
-#: Blocks up to this size are summed by gathers, which fuse into the kernel
-#: that uses the sums; larger ones by ``dr.block_sum``.
+#: Blocks up to this size are read as packets and summed in the kernel that
+#: uses the sums; larger ones by ``dr.block_sum``.
 GATHERED_BLOCK = 16
 
 
