@@ -24,14 +24,18 @@ def test_bench_quick_writes_every_figure(tmp_path):
         assert key in figures, key
     rays = figures["rays"]
     assert rays["total"] == sum(rays[k] for k in ("camera", "reflection", "refraction",
-                                                    "passthrough", "shadow"))
-    assert figures["bound"]["closest_hit_rays"] == (rays["camera"] + rays["reflection"]
-                                                    + rays["refraction"] + rays["passthrough"])
+                                                    "passthrough", "shadow", "shadow_march"))
     bound = figures["bound"]
+    assert bound["ray_intersect_rays"] == (rays["camera"] + rays["reflection"]
+                                           + rays["refraction"] + rays["passthrough"])
+    # The report's scene has tinted shadows: blocked shadow rays march on.
+    assert rays["shadow_march"] > 0 and bound["shadow_march_rays"] > 0
     assert 0 < bound["ratio"] == statistics.median(bound["ratios"])
     assert bound["render_s"] > 0 and len(bound["ratios"]) >= 2
-    assert isinstance(bound["ray_intersect_coherent"], bool)
-    assert isinstance(bound["ray_test_coherent"], bool)
+    for cast in ("ray_intersect", "ray_test", "shadow_march"):
+        assert bound[f"{cast}_s"] > 0 and isinstance(bound[f"{cast}_coherent"], bool)
+    assert bound["seconds"] == sum(bound[f"{cast}_s"] for cast in
+                                   ("ray_intersect", "ray_test", "shadow_march"))
     assert {row["parameter"] for row in figures["scaling"]} == {"res", "max_depth", "aa_max_depth"}
     assert all(row["seconds"] > 0 for row in figures["scaling"])
     assert all(mib > 0 for mib in figures["peak_rss_mib"].values())

@@ -120,7 +120,7 @@ def _render_both(loaded, whitted):
     return results
 
 
-COUNTS = ("camera", "reflection", "refraction", "passthrough", "shadow", "refined",
+COUNTS = ("camera", "reflection", "refraction", "passthrough", "shadow", "shadow_march", "refined",
           "generations", "aa_samples")
 
 

@@ -80,6 +80,92 @@ def test_opaque_occluder_blocks_in_both_modes():
         assert np.all(centre == 0)
 
 
+LIGHT_HEIGHT, BALL_HEIGHT, BALL_RADIUS, EYE_HEIGHT = 10.0, 5.0, 1.0, 20.0
+#: Half the width of floor the camera sees, and the film's size: chosen so
+#: that no pixel centre lies within 1e-3 of an edge of the ball or of its
+#: shadow (which the closed form checks).
+VIEW, MARCH_SIZE = 2.5, 34
+#: Mitsuba 3.9.1's orthographic sensor does not expose its JIT members to
+#: ``dr.freeze``: the tracer falls back to unfrozen kernels (with a warning).
+PROJECTIONS = {"perspective": "frozen kernels", "orthographic": "unfrozen kernels"}
+
+
+def march_scene(projection):
+    """A floor seen from straight above, lit by a point light above an
+    index-matched ball: a shadow ray through the ball takes three
+    closest-hit queries after its any-hit test (into the ball, out of it,
+    on to the light)."""
+    view = mi.ScalarTransform4f().look_at(origin=[0, EYE_HEIGHT, 0], target=[0, 0, 0],
+                                          up=[0, 0, -1])
+    film = {"type": "hdrfilm", "width": MARCH_SIZE, "height": MARCH_SIZE,
+            "rfilter": {"type": "box"}}
+    if projection == "orthographic":
+        sensor = {"type": "orthographic", "to_world": view.scale([VIEW, VIEW, 1]), "film": film}
+    else:
+        fov = 2 * math.degrees(math.atan(VIEW / EYE_HEIGHT))
+        sensor = {"type": "perspective", "fov": fov, "to_world": view, "film": film}
+    return scene(floor(y=0.0, size=3), point_light((0, LIGHT_HEIGHT, 0), 30.0),
+                 sphere((0, BALL_HEIGHT, 0), BALL_RADIUS, tinted_glass(1.0)), sensor=sensor)
+
+
+def _distance_to_ball(start, end):
+    """Float64: distance from the ball's centre to each segment."""
+    centre = np.array([0, BALL_HEIGHT, 0])
+    span = end - start
+    t = np.clip(np.sum((centre - start) * span, axis=-1) / np.sum(span ** 2, axis=-1), 0, 1)
+    return np.linalg.norm(start + t[..., None] * span - centre, axis=-1)
+
+
+def expected_shadow_rays(projection):
+    """Closed form: the floor points seen at the pixel centres (unless the
+    ball is in the way: a hit on the ball casts no shadow ray), and those
+    whose segment to the light crosses the ball."""
+    offsets = -VIEW + 2 * VIEW * (np.arange(MARCH_SIZE) + 0.5) / MARCH_SIZE
+    x, z = np.meshgrid(offsets, offsets)
+    floor_points = np.stack([x, np.zeros_like(x), z], axis=-1)
+    eyes = floor_points + [0, EYE_HEIGHT, 0] if projection == "orthographic" else \
+        np.broadcast_to([0, EYE_HEIGHT, 0], floor_points.shape)
+    sight = _distance_to_ball(eyes, floor_points)
+    shadow = _distance_to_ball(floor_points, np.broadcast_to([0, LIGHT_HEIGHT, 0],
+                                                             floor_points.shape))
+    for distance in (sight, shadow):
+        assert np.abs(distance - BALL_RADIUS).min() > 1e-3
+    floor_seen = sight > BALL_RADIUS
+    return int(floor_seen.sum()), int((floor_seen & (shadow < BALL_RADIUS)).sum())
+
+
+def render_march_scene(projection, capture):
+    loaded = mi.load_dict(march_scene(projection))
+    whitted = mi.load_dict(integrator(max_depth=2, aa="none"))
+    whitted.capture_rays = capture
+    assert_finite(mi.render(loaded, integrator=whitted))
+    return loaded, whitted
+
+
+@pytest.mark.parametrize("projection", PROJECTIONS, ids=list(PROJECTIONS.values()))
+@pytest.mark.parametrize("capture", [False, True], ids=["stack tracer", "wavefront tracer"])
+def test_marched_shadow_rays_are_counted(projection, capture):
+    """Each tracer counts every shadow ray once, and its marching queries,
+    also when its kernels cannot be frozen (a failed recording has run
+    them once already)."""
+    shadow_rays, blocked = expected_shadow_rays(projection)
+    assert 0 < blocked < shadow_rays
+    _, whitted = render_march_scene(projection, capture)
+    stats = whitted.last_stats
+    assert (stats["shadow"], stats["shadow_march"]) == (shadow_rays, 3 * blocked)
+
+
+def test_bench_replays_the_marched_shadow_rays():
+    """The bound casts the same closest-hit queries as the shadow tester."""
+    from mitsuba_whitted.bench import march_rays_of, shadow_rays_of
+    shadow_rays, blocked = expected_shadow_rays("perspective")
+    loaded, whitted = render_march_scene("perspective", capture=True)
+    (camera_rays,) = whitted.last_rays
+    shadow, targets = shadow_rays_of(loaded, mi.Ray3f(camera_rays.o, camera_rays.d), 1)
+    march = march_rays_of(loaded, whitted.make_tracer(loaded), shadow, targets)
+    assert (dr.width(shadow.o), dr.width(march.o)) == (shadow_rays, 3 * blocked)
+
+
 def test_diffuse_point_light_closed_form():
     """Floor radiance under a point light: rho/pi * I cos(theta) / d^2."""
     image, _ = render(shadow_scene())

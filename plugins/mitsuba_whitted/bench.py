@@ -8,14 +8,16 @@ kernels from Dr.Jit's cache) is measured in child processes, once with the
 kernel cache as it is and once with an empty one.
 
 The bound: the rays of a render are replayed through Mitsuba's own
-``scene.ray_intersect`` (camera, reflected and refracted rays) and
-``scene.ray_test`` (shadow rays to the same lights from the same hits), each
-in whichever of Embree's coherent and incoherent modes is the faster; the
-time those take is what a ray tracer on Mitsuba cannot beat, and
-bound / actual is the share of the render spent casting rays. The two are
-timed in alternating rounds (render, ``ray_intersect``, ``ray_test``) and
-the ratio is the median of the rounds' ratios, so that the machine's drift
-from minute to minute falls on both alike.
+``scene.ray_intersect`` (camera, reflected and refracted rays),
+``scene.ray_test`` (shadow rays to the same lights from the same hits) and
+``scene.ray_intersect`` again for the shadow rays that march through
+pass-through surfaces (the blocked ones, from crossing to crossing, as the
+integrator follows them), each in whichever of Embree's coherent and
+incoherent modes is the faster; the time those take is what a ray tracer on
+Mitsuba cannot beat, and bound / actual is the share of the render spent
+casting rays. They are timed in alternating rounds (render, then each cast)
+and the ratio is the median of the rounds' ratios, so that the machine's
+drift from minute to minute falls on all of them alike.
 """
 
 from __future__ import annotations
@@ -40,6 +42,8 @@ from . import load_file
 from .jit import timed
 from .compare.scene_report import machine
 from .compare.sweep import CONTRAST_AA, RELATION_PREFIX, speedup_text
+from .integrators.lighting import MAX_SHADOW_CROSSINGS
+from .integrators.offsets import spawn_ray_to
 
 DEFAULT_SCENE = Path(__file__).resolve().parents[2] / "scenes" / "cosc363.xml"
 
@@ -83,28 +87,73 @@ def _joined(vector_type, parts: list):
     return vector_type(*[dr.concat([part[axis] for part in parts]) for axis in range(3)])
 
 
-def shadow_rays_of(scene: mi.Scene, rays: mi.Ray3f, emitter_samples: int) -> mi.Ray3f:
+def shadow_rays_of(scene: mi.Scene, rays: mi.Ray3f, emitter_samples: int):
     """Shadow rays from the hits of ``rays`` to every light, as the Whitted
-    integrator casts them (hits with a smooth BSDF part only)."""
+    integrator casts them (where the light could add something through a
+    smooth BSDF part), and the point on the light each one goes to."""
     si = scene.ray_intersect(rays)
-    smooth = si.is_valid() & mi.has_flag(si.bsdf(rays).flags(), mi.BSDFFlags.Smooth)
-    origins, directions, lengths = [], [], []
+    bsdf = si.bsdf(rays)
+    smooth = si.is_valid() & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+    origins, directions, lengths, targets = [], [], [], []
     for emitter in scene.emitters():
         delta = mi.has_flag(emitter.flags(), mi.EmitterFlags.Delta)
         for sample in range(1 if delta else emitter_samples):
             u = mi.Point2f(0.5) if delta else mi.Point2f(
                 (sample + 0.5) / emitter_samples, ((sample * 0.618034) % 1.0))
-            ds, _ = emitter.sample_direction(si, u, smooth)
+            ds, spectrum = emitter.sample_direction(si, u, smooth)
+            value = bsdf.eval(mi.BSDFContext(), si, si.to_local(ds.d), smooth) * spectrum
             ray = si.spawn_ray_to(ds.p)
-            keep = dr.compress(smooth & (ds.pdf > 0))
+            keep = dr.compress(smooth & (ds.pdf > 0) & dr.any(value > 0))
             origins.append(dr.gather(mi.Point3f, ray.o, keep))
             directions.append(dr.gather(mi.Vector3f, ray.d, keep))
             lengths.append(dr.gather(mi.Float, ray.maxt, keep))
+            targets.append(dr.gather(mi.Point3f, ds.p, keep))
     if not origins:
-        return mi.Ray3f()
+        return mi.Ray3f(), mi.Point3f()
     ray = mi.Ray3f(_joined(mi.Point3f, origins), _joined(mi.Vector3f, directions))
     ray.maxt = dr.concat(lengths)
+    return ray, _joined(mi.Point3f, targets)
+
+
+def _taken(ray: mi.Ray3f, index: mi.UInt32) -> mi.Ray3f:
+    taken = mi.Ray3f(dr.gather(mi.Point3f, ray.o, index), dr.gather(mi.Vector3f, ray.d, index))
+    taken.maxt = dr.gather(mi.Float, ray.maxt, index)
+    return taken
+
+
+def _joined_rays(parts: list) -> mi.Ray3f:
+    """The rays of ``parts`` (rays or ray batches) one after another; the
+    parts' lengths where they have any."""
+    ray = mi.Ray3f(_joined(mi.Point3f, [part.o for part in parts]),
+                   _joined(mi.Vector3f, [part.d for part in parts]))
+    if parts and hasattr(parts[0], "maxt"):
+        ray.maxt = dr.concat([part.maxt for part in parts])
     return ray
+
+
+def march_rays_of(scene: mi.Scene, tracer, shadow: mi.Ray3f, targets: mi.Point3f) -> mi.Ray3f:
+    """The closest-hit queries the integrator's shadow tester makes after
+    the any-hit test: each blocked shadow ray, then from each crossing that
+    lets light through on to the light, as far as the tester follows (its
+    own intersection decides, exact analytic shapes included)."""
+    tester = tracer.shader.lighting.shadows
+    if tester.opaque or dr.width(shadow.o) == 0:
+        return mi.Ray3f()
+    index = dr.compress(scene.ray_test(shadow))
+    ray, target = _taken(shadow, index), dr.gather(mi.Point3f, targets, index)
+    parts = []
+    with tracer.scene_ref.holding(scene):
+        while dr.width(ray.o) and len(parts) < MAX_SHADOW_CROSSINGS:
+            parts.append(ray)
+            si = tester.intersect(ray, mi.Bool(True))
+            index = dr.compress(si.is_valid() & dr.any(
+                tester.pass_weight(si, ray, si.is_valid()) > 0))
+            if dr.width(index) == 0:
+                break
+            target = dr.gather(mi.Point3f, target, index)
+            ray = spawn_ray_to(dr.gather(type(si), si, index), target, tester.needs.scale)
+            dr.eval(ray, target)
+    return _joined_rays(parts)
 
 
 @dataclass
@@ -113,25 +162,29 @@ class Bound:
     that alternate with renders: the ratio of each round compares the two
     under the same conditions (on a shared machine either drifts by 10-20%
     from one minute to the next)."""
-    closest_rays: int
-    shadow_rays: int
-    intersect_seconds: float
-    test_seconds: float
-    #: Whether Embree's coherent mode was the faster for each call.
-    intersect_coherent: bool
-    test_coherent: bool
+    #: Per cast (see :data:`CASTS`): rays, median seconds, and whether
+    #: Embree's coherent mode was the faster.
+    rays: dict
+    seconds_by_cast: dict
+    coherent: dict
     #: Median of the renders timed in the same rounds.
     render_seconds: float
-    #: (ray_intersect + ray_test) / render of each round.
+    #: Sum of the casts over the render, of each round.
     ratios: list
 
     @property
     def seconds(self) -> float:
-        return self.intersect_seconds + self.test_seconds
+        return sum(self.seconds_by_cast.values())
 
     @property
     def ratio(self) -> float:
         return statistics.median(self.ratios)
+
+
+#: The casts of the bound: Mitsuba's call, and the rays it replays.
+CASTS = {"ray_intersect": "camera, reflected and refracted rays",
+         "ray_test": "shadow rays",
+         "shadow_march": "closest-hit queries of blocked shadow rays (ray_intersect)"}
 
 
 def _faster_mode(cast) -> bool:
@@ -162,32 +215,43 @@ def _check_modes_agree(scene: mi.Scene, rays: mi.Ray3f, shadow: mi.Ray3f) -> Non
                                f"modes found different hits (closest, shadow): {hits}")
 
 
-def ray_casting_bound(scene: mi.Scene, batches, emitter_samples: int, render,
-                      repeats: int) -> Bound:
-    """Mitsuba's own ray casting for the rays in ``batches``, timed in
-    ``repeats`` rounds of ``render()``, ``ray_intersect``, ``ray_test``,
-    each call in whichever of Embree's coherent and incoherent modes is the
-    faster for these rays (the integrator uses both)."""
-    rays = mi.Ray3f(_joined(mi.Point3f, [batch.o for batch in batches]),
-                    _joined(mi.Vector3f, [batch.d for batch in batches]))
-    shadow = shadow_rays_of(scene, rays, emitter_samples)
-    dr.eval(rays, shadow)
+def _casts(scene: mi.Scene, rays: mi.Ray3f, shadow: mi.Ray3f, march: mi.Ray3f) -> dict:
+    """``cast(coherent)`` of each of :data:`CASTS`, and the rays it casts."""
+    def intersecting(batch):
+        return lambda coherent: dr.eval(scene.ray_intersect(
+            batch, ray_flags=mi.RayFlags.All, coherent=coherent))
 
-    def intersect_in(coherent):
-        dr.eval(scene.ray_intersect(rays, ray_flags=mi.RayFlags.All, coherent=coherent))
-
-    def test_in(coherent):
+    def testing(coherent):
         dr.eval(scene.ray_test(shadow, coherent=coherent))
 
+    return {"ray_intersect": (intersecting(rays), rays), "ray_test": (testing, shadow),
+            "shadow_march": (intersecting(march), march)}
+
+
+def ray_casting_bound(scene: mi.Scene, tracer, batches, emitter_samples: int, render,
+                      repeats: int) -> Bound:
+    """Mitsuba's own ray casting for the rays in ``batches`` (those that
+    ``tracer``'s shadow tester marches included), timed in ``repeats``
+    rounds of ``render()`` and each cast, each cast in whichever of Embree's
+    coherent and incoherent modes is the faster for its rays (the
+    integrator uses both)."""
+    rays = _joined_rays(batches)
+    shadow, targets = shadow_rays_of(scene, rays, emitter_samples)
+    march = march_rays_of(scene, tracer, shadow, targets)
+    dr.eval(rays, shadow, march)
     _check_modes_agree(scene, rays, shadow)
-    intersect_coherent, test_coherent = _faster_mode(intersect_in), _faster_mode(test_in)
-    steps = (render, lambda: intersect_in(intersect_coherent), lambda: test_in(test_coherent))
+    casts = _casts(scene, rays, shadow, march)
+    counts = {name: dr.width(batch.o) for name, (_, batch) in casts.items()}
+    cast = {name: function for name, (function, _) in casts.items() if counts[name]}
+    coherent = {name: name in cast and _faster_mode(cast[name]) for name in casts}
+    steps = [render] + [lambda name=name: cast[name](coherent[name]) for name in cast]
     timed(render, 2)  # record
     rounds = [[timed(step, 1)[1][0] for step in steps] for _ in range(repeats)]
-    renders, intersects, tests = zip(*rounds)
-    return Bound(dr.width(rays.o), dr.width(shadow.o), statistics.median(intersects),
-                 statistics.median(tests), intersect_coherent, test_coherent,
-                 statistics.median(renders), [(a + b) / r for r, a, b in rounds])
+    columns = dict(zip(cast, list(zip(*rounds))[1:]))
+    seconds = {name: statistics.median(columns[name]) if name in columns else 0.0
+               for name in casts}
+    return Bound(counts, seconds, coherent, statistics.median([row[0] for row in rounds]),
+                 [sum(row[1:]) / row[0] for row in rounds])
 
 
 # -------------------------------------------------------- fresh processes
@@ -381,7 +445,8 @@ def headline(scene_path: Path, settings: BenchSettings, report) -> dict:
     integrator.capture_rays = True
     mi.render(scene, integrator=integrator)
     integrator.capture_rays = False
-    bound = ray_casting_bound(scene, integrator.last_rays, integrator.emitter_samples,
+    bound = ray_casting_bound(scene, integrator.make_tracer(scene), integrator.last_rays,
+                              integrator.emitter_samples,
                               lambda: mi.render(scene, integrator=integrator), settings.repeats)
     integrator.last_rays = None
     return {
@@ -391,14 +456,13 @@ def headline(scene_path: Path, settings: BenchSettings, report) -> dict:
         "second_render_in_process_s": timing.second,
         "warm_render_s": timing.warm,
         "warm_renders_s": timing.warm_all,
-        "rays": {k: timing.stats[k] for k in
-                 ("camera", "reflection", "refraction", "passthrough", "shadow", "refined", "total")},
+        "rays": {k: timing.stats[k] for k in ("camera", "reflection", "refraction", "passthrough",
+                                              "shadow", "shadow_march", "refined", "total")},
         "rays_per_second": timing.stats["total"] / timing.warm,
         "aa_samples": timing.stats["aa_samples"],
-        "bound": {"closest_hit_rays": bound.closest_rays, "shadow_rays": bound.shadow_rays,
-                  "ray_intersect_s": bound.intersect_seconds, "ray_test_s": bound.test_seconds,
-                  "ray_intersect_coherent": bound.intersect_coherent,
-                  "ray_test_coherent": bound.test_coherent,
+        "bound": {**{f"{name}_{figure}": values[name] for name in CASTS
+                     for figure, values in (("rays", bound.rays), ("s", bound.seconds_by_cast),
+                                            ("coherent", bound.coherent))},
                   "seconds": bound.seconds, "render_s": bound.render_seconds,
                   "ratio": bound.ratio, "ratios": bound.ratios},
         "peak_rss_mib_this_process": peak_rss_mib(),
@@ -458,12 +522,12 @@ def format_table(results: dict) -> str:
     lines += [
         "  rays: " + ", ".join(f"{k} {v:,}" for k, v in rays.items()),
         f"  rays/s                      {results['rays_per_second'] / 1e6:8.2f} M",
-        f"  bound: ray_intersect {bound['closest_hit_rays']:,} rays {bound['ray_intersect_s']:.3f} s"
-        f" ({_mode(bound['ray_intersect_coherent'])})"
-        f" + ray_test {bound['shadow_rays']:,} rays {bound['ray_test_s']:.3f} s"
-        f" ({_mode(bound['ray_test_coherent'])}) = {bound['seconds']:.3f} s",
+        "  bound: " + " + ".join(
+            f"{name} {bound[name + '_rays']:,} rays {bound[name + '_s']:.3f} s"
+            f" ({_mode(bound[name + '_coherent'])})" for name in CASTS)
+        + f" = {bound['seconds']:.3f} s",
         f"  bound / actual              {bound['ratio']:8.2f}  (median of {len(bound['ratios'])}"
-        f" rounds of render, ray_intersect, ray_test: {min(bound['ratios']):.2f}"
+        f" rounds of render and casts: {min(bound['ratios']):.2f}"
         f" to {max(bound['ratios']):.2f}; render {bound['render_s']:.3f} s in those rounds)",
         "  peak RSS: " + ", ".join(f"{res}^2 {mib:,.0f} MiB"
                                    for res, mib in results["peak_rss_mib"].items()),

@@ -60,7 +60,7 @@ class FrozenKernel:
     the process. Without the cycle, a scene and its tracer go as soon as
     the last reference to them does."""
 
-    def __init__(self, method, name: str, *fixed):
+    def __init__(self, method, name: str, *fixed, undo=None):
         weak = weakref.WeakMethod(method)
 
         def function(*args, **kwargs):
@@ -70,6 +70,11 @@ class FrozenKernel:
         self.name = name
         self.frozen = dr.freeze(function)
         self.enabled = True
+        #: A bound method too (held weakly, for the same reason), called
+        #: after a frozen call failed and before the method runs unfrozen: a
+        #: failed recording has already run the kernels, so whatever they
+        #: add to their arguments must be taken back first.
+        self.undo = weakref.WeakMethod(undo) if undo is not None else None
 
     def __call__(self, width: int, *args, **kwargs):
         if self.enabled:
@@ -84,4 +89,6 @@ class FrozenKernel:
             self.enabled = False
             mi.Log(mi.LogLevel.Warn,
                    f"whitted: tracing without frozen kernels in the {self.name} ({problem}).")
+            if self.undo is not None:
+                self.undo()()
         return self.function(*args, **kwargs)

@@ -59,8 +59,10 @@ class ShadowTester(ReadsScene):
 
     @dr.syntax
     def transmittance(self, si: mi.SurfaceInteraction3f, target: mi.Point3f,
-                      active: mi.Bool) -> mi.Color3f:
-        """What reaches ``target`` from ``si`` (0 outside ``active``).
+                      active: mi.Bool):
+        """What reaches ``target`` from ``si`` (0 outside ``active``), and
+        the closest-hit queries the segment took past its any-hit test
+        (:meth:`_march`; 0 where it was not blocked).
 
         A SIMD packet none of whose lanes casts a shadow ray skips the test
         (a symbolic branch): Embree called with an empty packet still costs
@@ -68,40 +70,42 @@ class ShadowTester(ReadsScene):
         time on the report's scene (packets of sky, of glass, of finished
         ray trees)."""
         passed = mi.Color3f(0)
+        marched = mi.UInt32(0)
         if active:
-            passed = self._cast(si, target, active)
-        return passed
+            passed, marched = self._cast(si, target, active)
+        return passed, marched
 
-    def _cast(self, si: mi.SurfaceInteraction3f, target: mi.Point3f,
-              active: mi.Bool) -> mi.Color3f:
+    def _cast(self, si: mi.SurfaceInteraction3f, target: mi.Point3f, active: mi.Bool):
         ray = spawn_ray_to(si, target, self.needs.scale)
         blocked = self.scene.ray_test(ray, active)
         free = dr.select(active & ~blocked, mi.Color3f(1), mi.Color3f(0))
         if self.opaque:
-            return free
+            return free, mi.UInt32(0)
         # Only rays the fast any-hit test found blocked can still carry light
         # (through a pass-through surface, or past a proxy that the exact
         # surface does not fill): march those alone.
-        return free + self._march(ray, target, active & blocked)
+        weight, marched = self._march(ray, target, active & blocked)
+        return free + weight, marched
 
     @dr.syntax
-    def _march(self, ray: mi.Ray3f, target: mi.Point3f, active: mi.Bool) -> mi.Color3f:
-        """Follow the shadow ray through pass-through surfaces to the light."""
+    def _march(self, ray: mi.Ray3f, target: mi.Point3f, active: mi.Bool):
+        """Follow the shadow ray through pass-through surfaces to the light:
+        what arrives, and how many closest-hit queries that took."""
         weight = dr.select(active, mi.Color3f(1), mi.Color3f(0))
         crossings = mi.UInt32(0)
         while active:
             si = self.intersect(ray, active)
             hit = active & si.is_valid()
-            passed = self._pass_weight(si, ray, hit)
+            passed = self.pass_weight(si, ray, hit)
             weight[hit] = weight * passed
             crossings += 1
             active = hit & dr.any(passed > 0) & (crossings < MAX_SHADOW_CROSSINGS)
             weight[hit & ~active] = mi.Color3f(0)
             ray[active] = spawn_ray_to(si, target, self.needs.scale)
-        return weight
+        return weight, crossings
 
-    def _pass_weight(self, si: mi.SurfaceInteraction3f, ray: mi.Ray3f,
-                     active: mi.Bool) -> mi.Color3f:
+    def pass_weight(self, si: mi.SurfaceInteraction3f, ray: mi.Ray3f,
+                    active: mi.Bool) -> mi.Color3f:
         """What a surface lets through along the shadow ray, 0 if it blocks:
         one dispatch, in which a BSDF that cannot let light through answers
         0 without any call (see :meth:`_passes`)."""
@@ -160,54 +164,67 @@ class DirectLighting:
                 for light in self.needs.delta_lights]
 
     def radiance(self, si, bsdf, key, active, terms, samples):
-        """Reflected radiance, and the shadow rays each lane cast.
-        ``terms``: the BSDF's albedo and values towards ``samples`` (the
-        ``delta_samples``); ``active``: lanes lights reach (smooth BSDFs)."""
+        """Reflected radiance, and the shadow rays each lane cast
+        (:class:`ShadowRays`). ``terms``: the BSDF's albedo and values
+        towards ``samples`` (the ``delta_samples``); ``active``: lanes
+        lights reach (smooth BSDFs)."""
         result = mi.Color3f(0)
-        shadow_rays = mi.UInt32(0)
+        rays = ShadowRays(mi.UInt32(0), mi.UInt32(0))
         if self.use_ambient:
             result += dr.select(active, terms.albedo, 0) * mi.Color3f(self.settings.ambient)
         for (ds, spectrum), value in zip(samples, terms.values):
-            radiance, lit = self._shadowed(si, ds, value * spectrum, active)
+            radiance, cast = self._shadowed(si, ds, value * spectrum, active)
             result += radiance
-            shadow_rays += mi.UInt32(lit)
+            rays += cast
         for index, light in enumerate(self.needs.sampled_lights):
             radiance, cast = self._sampled(light, index, si, bsdf, key, active)
             result += radiance
-            shadow_rays += cast
-        return result, shadow_rays
+            rays += cast
+        return result, rays
 
     def _from_light(self, light, si, bsdf, sample, active):
-        """Shadowed radiance from one light sample, and where it was tested."""
+        """Shadowed radiance from one light sample, and its shadow rays."""
         ds, spectrum = light.sample_direction(si, sample, active)
         f = bsdf.eval(mi.BSDFContext(), si, si.to_local(ds.d), active)
         return self._shadowed(si, ds, f * spectrum, active)
 
     def _shadowed(self, si, ds, contribution, active):
-        """``contribution`` through the shadow ray to ``ds``, and where a
-        shadow ray was cast (only where it could add light)."""
+        """``contribution`` through the shadow ray to ``ds``, and the rays
+        that took (a shadow ray only where it could add light)."""
         lit = active & (ds.pdf > 0) & dr.any(contribution > 0)
-        return contribution * self.shadows.transmittance(si, ds.p, lit), lit
+        passed, marched = self.shadows.transmittance(si, ds.p, lit)
+        return contribution * passed, ShadowRays(mi.UInt32(lit), marched)
 
     @dr.syntax
-    def _sampled(self, light, index, si, bsdf, key, active) -> mi.Color3f:
+    def _sampled(self, light, index, si, bsdf, key, active):
         """Mean of ``emitter_samples`` shadow rays, spread by the R2 sequence."""
         count = self.settings.emitter_samples
         active = active & ~_on_own_shape(light, si)
         rotation = _unit_pair(key, self.settings.seed * 7919 + index)
         total = mi.Color3f(0)
-        cast = mi.UInt32(0)
+        rays = ShadowRays(mi.UInt32(0), mi.UInt32(0))
         s = mi.UInt32(0)
         while active & (s < count):
             step = mi.Float(s)
             u = mi.Point2f(rotation[0] + step * R2_STEP[0],
                            rotation[1] + step * R2_STEP[1])
             u -= dr.floor(u)
-            radiance, lit = self._from_light(light, si, bsdf, u, active)
+            radiance, cast = self._from_light(light, si, bsdf, u, active)
             total += radiance
-            cast += mi.UInt32(lit)
+            rays += cast
             s += 1
-        return total / count, cast
+        return total / count, rays
+
+
+@dataclass
+class ShadowRays:
+    """Per lane: shadow rays tested (any-hit queries) and the closest-hit
+    queries that marched blocked ones through pass-through surfaces."""
+    tested: mi.UInt32
+    marched: mi.UInt32
+
+    def __add__(self, other: "ShadowRays") -> "ShadowRays":
+        return ShadowRays(self.tested + other.tested, self.marched + other.marched)
 
 
 def _on_own_shape(light, si: mi.SurfaceInteraction3f) -> mi.Bool:

@@ -40,12 +40,14 @@ class RayStats:
     refraction: object = 0
     passthrough: object = 0
     shadow: object = 0
+    #: Closest-hit queries of shadow rays through pass-through surfaces.
+    shadow_march: object = 0
     #: Hits on analytic proxies made exact (not extra rays).
     refined: object = 0
     generations: object = 0
     batches: int = 0
 
-    KINDS = ("camera", "reflection", "refraction", "passthrough", "shadow")
+    KINDS = ("camera", "reflection", "refraction", "passthrough", "shadow", "shadow_march")
 
     def as_dict(self) -> dict:
         counts = {kind: to_int(getattr(self, kind)) for kind in self.KINDS}
@@ -164,7 +166,9 @@ class RayTreeTracer(Tracer):
             len(rays), self.shader.scene, self._kernel_inputs, *rays.fields())
         local = dr.zeros(mi.Color3f, len(rays)) if local is None else local
         if shadow is not None:
-            self.stats.shadow = self.stats.shadow + dr.sum(shadow)
+            tested, marched = shadow
+            self.stats.shadow = self.stats.shadow + dr.sum(tested)
+            self.stats.shadow_march = self.stats.shadow_march + dr.sum(marched)
         if refined is not None:
             self.stats.refined = self.stats.refined + dr.sum(refined)
         if not candidates:
@@ -191,6 +195,8 @@ class RayTreeTracer(Tracer):
         if self.refiner is not None:
             refined = mi.UInt32(self.refiner.on_proxy(si, hit))
         local, shadow, children = self.shader.shade(si, ray, throughput, key, work)
+        if shadow is not None:
+            shadow = (shadow.tested, shadow.marched)
         candidates = [(child.o, child.d, child.throughput, child.key, child.code)
                       for child in children]
         return local, mi.Float(hit), shadow, refined, candidates

@@ -88,8 +88,8 @@ class HitShader(ReadsScene):
 
     def shade(self, si, ray, throughput, key, work: HitWork):
         """Radiance (times ``throughput``, ``None`` if nothing adds any),
-        shadow rays cast per lane (``None`` without lights) and one
-        :class:`Child` per component."""
+        the shadow rays of each lane (``ShadowRays``, ``None`` without
+        light work) and one :class:`Child` per component."""
         local = shadow = None
         children = []
         if work.emit is not False:

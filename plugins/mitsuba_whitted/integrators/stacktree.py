@@ -56,7 +56,7 @@ MAX_STACK = 32
 #: launch instead of six: 6% off its render time.
 LAUNCH_FACTOR = 8
 #: Per-lane counts a kernel returns (``RayStats`` fields).
-COUNTED = ("reflection", "refraction", "passthrough", "shadow", "refined")
+COUNTED = ("reflection", "refraction", "passthrough", "shadow", "shadow_march", "refined")
 
 
 def stack_capacity(spawning_generations: int, fan_out: int) -> int:
@@ -118,8 +118,11 @@ class StackTreeTracer(Tracer):
     def __init__(self, shader: HitShader, intersect, refiner=None):
         super().__init__(shader, intersect, refiner)
         self.capacity = stack_capacity(shader.spawning_generations(), shader.fan_out)
-        self._kernel = FrozenKernel(self._trace_kernel, "stack tracer")
-        self._camera_kernel = FrozenKernel(self._trace_camera_kernel, "stack tracer")
+        self._kernel = FrozenKernel(self._trace_kernel, "stack tracer",
+                                    undo=self._restore_totals)
+        self._camera_kernel = FrozenKernel(self._trace_camera_kernel, "stack tracer",
+                                           undo=self._restore_totals)
+        self._saved_totals = None
 
     @staticmethod
     def supports(shader: HitShader) -> bool:
@@ -142,21 +145,31 @@ class StackTreeTracer(Tracer):
 
     def trace(self, rays: RayBatch):
         """Radiance and alpha (primary hit) of each ray."""
-        self._count_batch(len(rays))
+        self._count_batch(len(rays), self._kernel)
         return self._kernel(len(rays), self.shader.scene, self._kernel_inputs,
                             self._counts, self._deepest, *rays.fields())
 
     def trace_camera(self, sensor: mi.Sensor, positions: mi.Point2f, keys: mi.UInt32):
         """Radiance and alpha of camera rays through ``positions``, made
         inside the kernel (no ray arrays go through memory)."""
-        self._count_batch(dr.width(keys))
+        self._count_batch(dr.width(keys), self._camera_kernel)
         return self._camera_kernel(dr.width(keys), self.shader.scene, sensor,
                                    self._kernel_inputs, self._counts, self._deepest,
                                    positions, keys)
 
-    def _count_batch(self, rays: int) -> None:
+    def _count_batch(self, rays: int, kernel: FrozenKernel) -> None:
         self.stats.camera += rays
         self.stats.batches += 1
+        # While the kernel may still fail to freeze, keep the totals it is
+        # about to add to (two copies of a few integers).
+        if kernel.enabled:
+            self._saved_totals = dr.copy(self._counts), dr.copy(self._deepest)
+
+    def _restore_totals(self) -> None:
+        """Take back what a failed frozen call added to the totals."""
+        for total, saved in zip((self._counts, self._deepest), self._saved_totals):
+            dr.scatter(total, saved, dr.arange(mi.UInt32, dr.width(total)))
+        dr.eval(self._counts, self._deepest)
 
     def statistics(self) -> dict:
         counts = self._counts.numpy()
@@ -211,7 +224,8 @@ class StackTreeTracer(Tracer):
         if local is not None:
             radiance = radiance + local
         if shadow is not None:
-            counts["shadow"] += shadow
+            counts["shadow"] += shadow.tested
+            counts["shadow_march"] += shadow.marched
         live = mi.Bool(False)
         for child in children:
             valid = child.code != 0
