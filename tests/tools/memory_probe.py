@@ -5,7 +5,6 @@ Run in a fresh process so the figure is this render's own:
 """
 
 import json
-import resource
 import sys
 import time
 
@@ -16,6 +15,7 @@ import mitsuba as mi
 
 def main(size: int, max_depth: int) -> None:
     mitsuba_whitted.set_variant("llvm_ad_rgb")
+    from mitsuba_whitted.bench import peak_rss_mib
     glass = {"type": "dielectric", "int_ior": 1.5}
     scene = mi.load_dict({
         "type": "scene",
@@ -33,7 +33,7 @@ def main(size: int, max_depth: int) -> None:
     dr.sync_thread()
     seconds = time.perf_counter() - start
     finite = bool(dr.all(dr.isfinite(image.array)))
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    peak = peak_rss_mib()
     print(json.dumps({"peak_rss_mib": peak, "seconds": seconds, "finite": finite,
                       "rays": integrator.last_stats}))
 
