@@ -60,7 +60,7 @@ class FrozenKernel:
     the process. Without the cycle, a scene and its tracer go as soon as
     the last reference to them does."""
 
-    def __init__(self, method, name: str, *fixed, undo=None):
+    def __init__(self, method, name: str, *fixed, undo=None, fallback=None):
         weak = weakref.WeakMethod(method)
 
         def function(*args, **kwargs):
@@ -75,6 +75,11 @@ class FrozenKernel:
         #: failed recording has already run the kernels, so whatever they
         #: add to their arguments must be taken back first.
         self.undo = weakref.WeakMethod(undo) if undo is not None else None
+        #: ``(bound method, what it does)``: run with the same arguments
+        #: instead of the method unfrozen, once freezing failed.
+        self.fallback = None
+        if fallback is not None:
+            self.fallback = (weakref.WeakMethod(fallback[0]), fallback[1])
 
     def __call__(self, width: int, *args, **kwargs):
         if self.enabled:
@@ -86,9 +91,16 @@ class FrozenKernel:
                 problem = "a replay returned arrays of the wrong width"
             except RuntimeError as error:
                 problem = str(error).splitlines()[0]
-            self.enabled = False
-            mi.Log(mi.LogLevel.Warn,
-                   f"whitted: tracing without frozen kernels in the {self.name} ({problem}).")
-            if self.undo is not None:
-                self.undo()()
+            self._disable(problem)
+        if self.fallback is not None:
+            return self.fallback[0]()(*args, **kwargs)
         return self.function(*args, **kwargs)
+
+    def _disable(self, problem: str) -> None:
+        """Stop freezing, say so, and take back what the failed call added."""
+        self.enabled = False
+        instead = (self.fallback[1] if self.fallback is not None
+                   else f"tracing without frozen kernels in the {self.name}")
+        mi.Log(mi.LogLevel.Warn, f"whitted: {instead} ({problem}).")
+        if self.undo is not None:
+            self.undo()()

@@ -120,8 +120,10 @@ class StackTreeTracer(Tracer):
         self.capacity = stack_capacity(shader.spawning_generations(), shader.fan_out)
         self._kernel = FrozenKernel(self._trace_kernel, "stack tracer",
                                     undo=self._restore_totals)
-        self._camera_kernel = FrozenKernel(self._trace_camera_kernel, "stack tracer",
-                                           undo=self._restore_totals)
+        self._camera_kernel = FrozenKernel(
+            self._trace_camera_kernel, "stack tracer", undo=self._restore_totals,
+            fallback=(self._trace_camera_rays, "the stack tracer makes this sensor's camera "
+                      "rays outside its kernel, which Dr.Jit cannot freeze with them inside"))
         self._saved_totals = None
 
     @staticmethod
@@ -145,23 +147,39 @@ class StackTreeTracer(Tracer):
 
     def trace(self, rays: RayBatch):
         """Radiance and alpha (primary hit) of each ray."""
-        self._count_batch(len(rays), self._kernel)
-        return self._kernel(len(rays), self.shader.scene, self._kernel_inputs,
-                            self._counts, self._deepest, *rays.fields())
+        self._count_batch(len(rays))
+        return self._launch_ray_kernel(self.shader.scene, self._kernel_inputs,
+                                       *rays.fields())
 
     def trace_camera(self, sensor: mi.Sensor, positions: mi.Point2f, keys: mi.UInt32):
         """Radiance and alpha of camera rays through ``positions``, made
-        inside the kernel (no ray arrays go through memory)."""
-        self._count_batch(dr.width(keys), self._camera_kernel)
+        inside the kernel (no ray arrays go through memory) where Dr.Jit
+        can freeze the sensor's ray generation."""
+        self._count_batch(dr.width(keys))
+        self._save_totals(self._camera_kernel)
         return self._camera_kernel(dr.width(keys), self.shader.scene, sensor,
                                    self._kernel_inputs, self._counts, self._deepest,
                                    positions, keys)
 
-    def _count_batch(self, rays: int, kernel: FrozenKernel) -> None:
+    def _trace_camera_rays(self, scene, sensor, inputs, counts, deepest, positions, keys):
+        """The camera kernel's result, its rays made outside the kernel and
+        passed in through memory (for the sensors whose members Mitsuba
+        3.9.1 does not expose to ``dr.freeze``: orthographic, thin lens)."""
+        ray, weight = camera_rays(sensor, positions)
+        return self._launch_ray_kernel(scene, inputs, ray.o, ray.d, mi.Color3f(weight), keys)
+
+    def _launch_ray_kernel(self, scene, inputs, o, d, throughput, key):
+        self._save_totals(self._kernel)
+        return self._kernel(dr.width(key), scene, inputs, self._counts, self._deepest,
+                            o, d, throughput, key)
+
+    def _count_batch(self, rays: int) -> None:
         self.stats.camera += rays
         self.stats.batches += 1
-        # While the kernel may still fail to freeze, keep the totals it is
-        # about to add to (two copies of a few integers).
+
+    def _save_totals(self, kernel: FrozenKernel) -> None:
+        """While ``kernel`` may still fail to freeze, keep the totals it is
+        about to add to (two copies of a few integers)."""
         if kernel.enabled:
             self._saved_totals = dr.copy(self._counts), dr.copy(self._deepest)
 
