@@ -86,8 +86,9 @@ LIGHT_HEIGHT, BALL_HEIGHT, BALL_RADIUS, EYE_HEIGHT = 10.0, 5.0, 1.0, 20.0
 #: shadow (which the closed form checks).
 VIEW, MARCH_SIZE = 2.5, 34
 #: Mitsuba 3.9.1's orthographic sensor does not expose its JIT members to
-#: ``dr.freeze``: the tracer falls back to unfrozen kernels (with a warning).
-PROJECTIONS = {"perspective": "frozen kernels", "orthographic": "unfrozen kernels"}
+#: ``dr.freeze``: the stack tracer's camera kernel fails to record (after
+#: running once) and the tracer makes the camera rays outside it instead.
+PROJECTIONS = {"perspective": "camera kernel", "orthographic": "camera kernel not frozen"}
 
 
 def march_scene(projection):
@@ -146,8 +147,8 @@ def render_march_scene(projection, capture):
 @pytest.mark.parametrize("capture", [False, True], ids=["stack tracer", "wavefront tracer"])
 def test_marched_shadow_rays_are_counted(projection, capture):
     """Each tracer counts every shadow ray once, and its marching queries,
-    also when its kernels cannot be frozen (a failed recording has run
-    them once already)."""
+    also when a kernel cannot be frozen (its failed recording has run it
+    once already)."""
     shadow_rays, blocked = expected_shadow_rays(projection)
     assert 0 < blocked < shadow_rays
     _, whitted = render_march_scene(projection, capture)
