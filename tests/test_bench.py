@@ -54,6 +54,22 @@ def test_a_child_reports_its_own_peak_memory_not_its_parents():
     from mitsuba_whitted.bench import DEFAULT_SCENE, child_peak_memory, peak_rss_mib
     resident = np.ones(2 ** 27)  # 1 GiB, touched
     assert peak_rss_mib() > 1024
-    child = child_peak_memory(DEFAULT_SCENE, {"res": "16", "aa": "none"})
+    child = child_peak_memory(DEFAULT_SCENE, {"aa": "none"}, {"res": 16})
     assert 0 < child < 1024
     del resident
+
+
+def test_bench_sweeps_a_scene_that_declares_no_parameters():
+    """The mirror chain names neither its depth nor its anti-aliasing depth
+    as $-parameters: the sweeps must still set them (a define would be an
+    unused parameter, which Mitsuba refuses)."""
+    from dataclasses import replace
+    from mitsuba_whitted.bench import BenchSettings, run
+    settings = replace(BenchSettings.quick(ROOT / "scenes" / "cases" / "mirror_chain.xml"),
+                       fresh_processes=False)
+    figures = run(settings, report=lambda line: None)
+    assert figures["resolution"] == [96, 96]
+    rays = {(row["parameter"], row["value"]): row["rays"] for row in figures["scaling"]}
+    # Four times the pixels, about four times the rays; deeper trees, more rays.
+    assert 3.5 < rays["res", 128] / rays["res", 64] < 4.5
+    assert rays["max_depth", 6] > rays["max_depth", 2]

@@ -38,8 +38,8 @@ from pathlib import Path
 import drjit as dr
 import mitsuba as mi
 
-from . import load_file
 from .jit import timed
+from .overrides import load_with
 from .compare.scene_report import machine
 from .compare.sweep import CONTRAST_AA, RELATION_PREFIX, speedup_text
 from .integrators.lighting import MAX_SHADOW_CROSSINGS
@@ -270,8 +270,10 @@ def ray_casting_bound(scene: mi.Scene, tracer, batches, emitter_samples: int, re
 
 
 def fresh_process_render(scene_path: Path, defines: dict, empty_cache: bool) -> dict:
-    """Run ``mitsuba-whitted render`` in a child process; its wall time and
-    the render time it reports. An empty kernel cache is a fresh HOME."""
+    """Run ``mitsuba-whitted render`` in a child process, on the scene as
+    a user renders it (``defines`` as ``-D``, no other settings); its wall
+    time and the render time it reports. An empty kernel cache is a fresh
+    HOME."""
     env = dict(os.environ)
     with tempfile.TemporaryDirectory() as tmp:
         if empty_cache:
@@ -290,17 +292,18 @@ def fresh_process_render(scene_path: Path, defines: dict, empty_cache: bool) -> 
     return {"process_seconds": wall, "render_seconds": render}
 
 
-def child_peak_memory(scene_path: Path, defines: dict) -> float:
-    """Peak RSS (MiB) of a child process that loads and renders the scene."""
+def child_peak_memory(scene_path: Path, defines: dict, settings: dict) -> float:
+    """Peak RSS (MiB) of a child process that loads and renders the scene
+    (with ``settings``, see :func:`~mitsuba_whitted.overrides.load_with`)."""
     code = ("import sys, json, mitsuba_whitted, mitsuba as mi, drjit as dr\n"
             "mitsuba_whitted.set_variant('llvm_ad_rgb')\n"
             "from mitsuba_whitted.bench import peak_rss_mib\n"
-            "defines = json.loads(sys.argv[2])\n"
-            "scene = mitsuba_whitted.load_file(sys.argv[1], **defines)\n"
+            "from mitsuba_whitted.overrides import load_with\n"
+            "scene = load_with(sys.argv[1], json.loads(sys.argv[2]), json.loads(sys.argv[3]))\n"
             "mi.render(scene); dr.sync_thread()\n"
             "print('peak_rss_mib', peak_rss_mib())\n")
-    result = subprocess.run([sys.executable, "-c", code, str(scene_path), json.dumps(defines)],
-                            capture_output=True, text=True, timeout=1800)
+    result = subprocess.run([sys.executable, "-c", code, str(scene_path), json.dumps(defines),
+                             json.dumps(settings)], capture_output=True, text=True, timeout=1800)
     if result.returncode != 0:
         raise RuntimeError(f"mitsuba-whitted bench: the child render failed: {result.stderr.strip()}")
     # Mitsuba's log shares stdout (with colour codes): find our own line.
@@ -334,18 +337,20 @@ def release_scenes() -> None:
     dr.flush_malloc_cache()
 
 
-def warm_timing(scene_path: Path, defines: dict, repeats: int) -> RenderTiming:
-    scene = load_file(scene_path, **defines)
+def warm_timing(scene_path: Path, defines: dict, settings: dict, repeats: int) -> RenderTiming:
+    scene = load_with(scene_path, defines, settings)
     return time_render(scene, scene.integrator(), repeats)
 
 
-def scaling_table(scene_path: Path, base: dict, sweeps: dict, repeats: int) -> list[ScalingRow]:
-    """Warm render time as each parameter of ``sweeps`` varies alone."""
+def scaling_table(scene_path: Path, defines: dict, base: dict, sweeps: dict,
+                  repeats: int) -> list[ScalingRow]:
+    """Warm render time as each setting of ``sweeps`` varies alone from
+    ``base`` (settings of :func:`~mitsuba_whitted.overrides.load_with`)."""
     rows = []
     for parameter, values in sweeps.items():
         for value in values:
             release_scenes()
-            timing = warm_timing(scene_path, dict(base, **{parameter: str(value)}), repeats)
+            timing = warm_timing(scene_path, defines, dict(base, **{parameter: value}), repeats)
             rows.append(ScalingRow(parameter, value, timing.warm, timing.stats["total"]))
     return rows
 
@@ -425,6 +430,9 @@ def equal_error_speedup(resolution: int, reference_spp: int, largest_spp: int,
 class BenchSettings:
     scene: Path = DEFAULT_SCENE
     defines: dict = field(default_factory=dict)
+    #: Film width of the headline, memory and depth figures (the height
+    #: keeps the film's aspect); ``None``: the scene's own.
+    resolution: int | None = None
     repeats: int = 7
     resolutions: tuple = (256, 512, 1024, 2048)
     depths: tuple = (2, 4, 6, 10)
@@ -439,15 +447,21 @@ class BenchSettings:
     @classmethod
     def quick(cls, scene: Path = DEFAULT_SCENE, defines=None) -> "BenchSettings":
         """Small sizes and few repeats: every figure, in seconds."""
-        return cls(scene, {"res": "96", **(defines or {})}, repeats=2, resolutions=(64, 128),
+        return cls(scene, dict(defines or {}), resolution=96, repeats=2, resolutions=(64, 128),
                    depths=(2, 6), aa_depths=(0, 3), memory_resolutions=(96,),
                    equal_error=(32, 512, 64))
+
+    @property
+    def scene_settings(self) -> dict:
+        """What :func:`~mitsuba_whitted.overrides.load_with` changes in the
+        scene for the headline."""
+        return {} if self.resolution is None else {"res": self.resolution}
 
 
 def headline(scene_path: Path, settings: BenchSettings, report) -> dict:
     """Warm and first renders, rays by kind and the ray-casting bound of
     ``scene_path``; the scene is released when this returns."""
-    scene = load_file(scene_path, **settings.defines)
+    scene = load_with(scene_path, settings.defines, settings.scene_settings)
     integrator = scene.integrator()
     if not hasattr(integrator, "capture_rays"):
         raise RuntimeError("mitsuba-whitted bench: the scene's integrator is not 'whitted'.")
@@ -464,6 +478,7 @@ def headline(scene_path: Path, settings: BenchSettings, report) -> dict:
     integrator.last_rays = None
     return {
         "scene": str(scene_path), "defines": settings.defines,
+        "settings": settings.scene_settings,
         "resolution": list(scene.sensors()[0].film().crop_size()),
         "first_render_in_process_s": timing.first,
         "second_render_in_process_s": timing.second,
@@ -493,14 +508,13 @@ def run(settings: BenchSettings, report=print) -> dict:
         results["fresh_process_empty_cache"] = fresh_process_render(scene_path, settings.defines, True)
     report("peak memory in child processes ...")
     results["peak_rss_mib"] = {
-        str(res): child_peak_memory(scene_path, dict(settings.defines, res=str(res)))
+        str(res): child_peak_memory(scene_path, settings.defines,
+                                    dict(settings.scene_settings, res=res))
         for res in settings.memory_resolutions}
     report("scaling ...")
-    base = dict(settings.defines)
-    rows = scaling_table(scene_path, base, {"res": settings.resolutions,
-                                            "max_depth": settings.depths,
-                                            "aa_max_depth": settings.aa_depths},
-                         settings.repeats)
+    rows = scaling_table(scene_path, settings.defines, settings.scene_settings,
+                         {"res": settings.resolutions, "max_depth": settings.depths,
+                          "aa_max_depth": settings.aa_depths}, settings.repeats)
     results["scaling"] = [{"parameter": r.parameter, "value": r.value, "seconds": r.seconds,
                            "rays": r.rays, "rays_per_second": r.rays_per_second} for r in rows]
     report("equal error against path ...")
@@ -528,7 +542,8 @@ def format_table(results: dict) -> str:
         fresh, empty = results["fresh_process"], results["fresh_process_empty_cache"]
         lines += [
             f"  whole render process        {fresh['process_seconds']:8.3f} s  "
-            f"(render {fresh['render_seconds']:.3f} s, kernel cache warm)",
+            f"(render {fresh['render_seconds']:.3f} s, kernel cache warm; the scene as "
+            "`mitsuba-whitted render` renders it)",
             f"  same, empty kernel cache    {empty['process_seconds']:8.3f} s  "
             f"(render {empty['render_seconds']:.3f} s)",
         ]
@@ -542,8 +557,8 @@ def format_table(results: dict) -> str:
         f"  bound / actual              {bound['ratio']:8.2f}  (median of {len(bound['ratios'])}"
         f" rounds of render and casts: {min(bound['ratios']):.2f}"
         f" to {max(bound['ratios']):.2f}; render {bound['render_s']:.3f} s in those rounds)",
-        "  peak RSS: " + ", ".join(f"{res}^2 {mib:,.0f} MiB"
-                                   for res, mib in results["peak_rss_mib"].items()),
+        "  peak RSS by film width: " + ", ".join(f"{res} px {mib:,.0f} MiB"
+                                               for res, mib in results["peak_rss_mib"].items()),
         "  scaling (warm):",
     ]
     for row in results["scaling"]:
