@@ -73,3 +73,46 @@ def test_bench_sweeps_a_scene_that_declares_no_parameters():
     # Four times the pixels, about four times the rays; deeper trees, more rays.
     assert 3.5 < rays["res", 128] / rays["res", 64] < 4.5
     assert rays["max_depth", 6] > rays["max_depth", 2]
+
+
+def _bound_of(description):
+    """The bound of a one-generation render, its ray counts and how many
+    camera rays hit."""
+    import drjit as dr
+    import mitsuba as mi
+    from mitsuba_whitted.bench import ray_casting_bound
+    loaded = mi.load_dict(description)
+    whitted = loaded.integrator()
+    whitted.capture_rays = True
+    mi.render(loaded)
+    whitted.capture_rays = False
+    camera_rays = whitted.last_rays[0]
+    hits = dr.count(loaded.ray_intersect(mi.Ray3f(camera_rays.o, camera_rays.d)).is_valid())[0]
+    bound = ray_casting_bound(loaded, whitted.make_tracer(loaded), whitted.last_rays, 1,
+                              lambda: mi.render(loaded), 2)
+    return bound, whitted.last_stats, hits
+
+
+def test_the_bound_of_a_light_no_hit_can_see():
+    """A light under the floor adds no shadow ray (the floor faces away
+    from it): its part of the replay is empty, next to the other light's."""
+    from scenes import camera, floor, integrator, point_light, scene
+    description = scene(floor(), point_light((0, 3, 0)), point_light((0, -3, 0)),
+                        sensor=camera(origin=(0, 2, 4), size=16), whitted=integrator())
+    bound, stats, hits = _bound_of(description)
+    assert 0 < hits < 16 * 16
+    assert bound.rays["ray_test"] == stats["shadow"] == hits
+    assert bound.seconds_by_cast["ray_test"] > 0
+
+
+def test_the_bound_of_a_scene_without_shadow_rays():
+    """Only a mirror under an environment: nothing to test, nothing to
+    march (casting an empty batch would abort the process)."""
+    from scenes import camera, integrator, scene, sphere
+    description = scene(sphere((0, 0, 0), 1.0, {"type": "conductor"}),
+                        sensor=camera(size=16), whitted=integrator(),
+                        env={"type": "constant"})
+    bound, stats, hits = _bound_of(description)
+    assert hits > 0
+    assert stats["shadow"] == bound.rays["ray_test"] == bound.rays["shadow_march"] == 0
+    assert bound.seconds_by_cast["ray_test"] == 0 and bound.seconds > 0

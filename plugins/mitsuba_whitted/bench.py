@@ -90,13 +90,19 @@ def time_render(scene: mi.Scene, integrator, repeats: int) -> RenderTiming:
 # ------------------------------------------------------------------ bound
 
 
+def _concat(array_type, parts: list):
+    """``parts`` one after another (``dr.concat`` refuses an empty part: a
+    light that no hit sees leaves one)."""
+    parts = [part for part in parts if dr.width(part)]
+    return dr.concat(parts) if parts else array_type()
+
+
 def _joined(vector_type, parts: list):
     """The 3-vectors of ``parts`` one after another, kept on the device (a
     round trip through NumPy would hand the kernels memory of arbitrary
     alignment, and so kernels that differ from process to process)."""
-    if not parts:
-        return vector_type()
-    return vector_type(*[dr.concat([part[axis] for part in parts]) for axis in range(3)])
+    return vector_type(*[_concat(mi.Float, [part[axis] for part in parts])
+                         for axis in range(3)])
 
 
 def shadow_rays_of(scene: mi.Scene, rays: mi.Ray3f, emitter_samples: int):
@@ -123,7 +129,7 @@ def shadow_rays_of(scene: mi.Scene, rays: mi.Ray3f, emitter_samples: int):
     if not origins:
         return mi.Ray3f(), mi.Point3f()
     ray = mi.Ray3f(_joined(mi.Point3f, origins), _joined(mi.Vector3f, directions))
-    ray.maxt = dr.concat(lengths)
+    ray.maxt = _concat(mi.Float, lengths)
     return ray, _joined(mi.Point3f, targets)
 
 
@@ -139,7 +145,7 @@ def _joined_rays(parts: list) -> mi.Ray3f:
     ray = mi.Ray3f(_joined(mi.Point3f, [part.o for part in parts]),
                    _joined(mi.Vector3f, [part.d for part in parts]))
     if parts and hasattr(parts[0], "maxt"):
-        ray.maxt = dr.concat([part.maxt for part in parts])
+        ray.maxt = _concat(mi.Float, [part.maxt for part in parts])
     return ray
 
 
@@ -216,15 +222,22 @@ MODES_AGREE = 1e-3
 def _check_modes_agree(scene: mi.Scene, rays: mi.Ray3f, shadow: mi.Ray3f) -> None:
     """The coherent flag is only a hint: both modes must find the same hits
     but for rounding (a call that cast nothing, e.g. through a wrong
-    overload, would not)."""
-    hits = {coherent: (dr.count(scene.ray_intersect(rays, ray_flags=mi.RayFlags.All,
-                                                    coherent=coherent).is_valid())[0],
-                       dr.count(scene.ray_test(shadow, coherent=coherent))[0])
-            for coherent in (False, True)}
-    for incoherent, coherent in zip(hits[False], hits[True]):
+    overload, would not). Empty batches are left out: Dr.Jit aborts the
+    process on a cast of an array that was never filled."""
+    def hits(coherent):
+        found = []
+        if dr.width(rays.o):
+            found.append(dr.count(scene.ray_intersect(rays, ray_flags=mi.RayFlags.All,
+                                                      coherent=coherent).is_valid())[0])
+        if dr.width(shadow.o):
+            found.append(dr.count(scene.ray_test(shadow, coherent=coherent))[0])
+        return found
+
+    found = {coherent: hits(coherent) for coherent in (False, True)}
+    for incoherent, coherent in zip(found[False], found[True]):
         if abs(incoherent - coherent) > MODES_AGREE * max(incoherent, coherent, 1):
             raise RuntimeError(f"mitsuba-whitted bench: Embree's coherent and incoherent "
-                               f"modes found different hits (closest, shadow): {hits}")
+                               f"modes found different hits (closest, shadow): {found}")
 
 
 def _casts(scene: mi.Scene, rays: mi.Ray3f, shadow: mi.Ray3f, march: mi.Ray3f) -> dict:
