@@ -161,11 +161,14 @@ def test_each_tracer_where_it_belongs():
 def test_every_anti_aliasing_level_replays_one_recording():
     """The first render records the stack kernel once and replays it for
     each adaptive level after the first (an input that is a literal in one
-    launch and memory in the next makes Dr.Jit record again)."""
+    launch and memory in the next makes Dr.Jit record again), and so do
+    later renders (``mi.render`` seeds the sensor's sampler after each
+    render, which the kernels take as an input with the sensor)."""
     loaded = mi.load_file(str(ROOT / "scenes" / "cosc363.xml"), res="96", aa_max_depth="4")
-    mi.render(loaded)
-    assert loaded.integrator().last_stats["aa_levels"] == 4
-    assert loaded.integrator()._last.tracer._camera_kernel.frozen.n_recordings == 1
+    for _ in range(3):
+        mi.render(loaded)
+        assert loaded.integrator().last_stats["aa_levels"] == 4
+        assert loaded.integrator()._last.tracer._camera_kernel.frozen.n_recordings == 1
 
 
 def _change_lights_and_colours(loaded):

@@ -76,9 +76,9 @@ class RenderTiming:
 
 def time_render(scene: mi.Scene, integrator, repeats: int) -> RenderTiming:
     """First render (in this process), the second, and the median of the
-    warm renders after them. The second is kept apart: Dr.Jit records the
-    frozen kernels once more there (its ``auto_opaque`` pass), so it is not
-    yet warm."""
+    warm renders after them. The second is kept apart: it is the first to
+    replay the kernels the first recorded, and anything that makes it record
+    them again shows there."""
     def render():
         mi.render(scene, integrator=integrator)
 
