@@ -84,3 +84,14 @@ def test_a_width_parameter_without_a_value_says_so(tmp_path):
     path.write_text(LITERAL_SCENE.replace('value="80"', 'value="$w"'))
     with pytest.raises(RuntimeError, match=r"refers to \$w, which has no value"):
         load_with(path, {}, {"res": 32})
+
+
+def test_a_crop_window_keeps_its_place_on_the_film(literal_scene):
+    """Half the width: the crop window halves too, where it was."""
+    crop = ('<integer name="crop_offset_x" value="10"/><integer name="crop_offset_y" value="6"/>'
+            '<integer name="crop_width" value="40"/><integer name="crop_height" value="30"/>')
+    literal_scene.write_text(LITERAL_SCENE.replace('<integer name="height" value="60"/>',
+                                                   '<integer name="height" value="60"/>' + crop))
+    film = load_with(literal_scene, {}, {"res": 40}).sensors()[0].film()
+    assert (list(film.size()), list(film.crop_offset()), list(film.crop_size())) == \
+        ([40, 30], [5, 3], [20, 15])

@@ -53,17 +53,33 @@ def _element(root: ET.Element, where: str, path: Path) -> ET.Element:
     return element
 
 
+#: The crop window's offset and size along each side of the film.
+CROP = {"width": ("crop_offset_x", "crop_width"), "height": ("crop_offset_y", "crop_height")}
+
+
 def _set_resolution(root: ET.Element, path: Path, defines: dict, width: int) -> None:
+    """The film ``width`` pixels wide; its aspect kept, and its crop window
+    where it was on the film, in proportion."""
     film = _element(root, "sensor/film", path)
-    old_width, old_height = (_resolved(root, film, name, default, defines)
-                             for name, default in zip(("width", "height"), DEFAULT_FILM_SIZE))
-    height = max(1, round(width * old_height / old_width))
-    _set_property(film, "integer", "width", width, defines)
-    _set_property(film, "integer", "height", height, defines)
+    old = {axis: _resolved(root, film, axis, default, defines)
+           for axis, default in zip(CROP, DEFAULT_FILM_SIZE)}
+    crop = {name: _resolved(root, film, name, None, defines)
+            for names in CROP.values() for name in names}
+    new = {"width": width, "height": max(1, round(width * old["height"] / old["width"]))}
+    for axis, (offset_name, size_name) in CROP.items():
+        _set_property(film, "integer", axis, new[axis], defines)
+        offset, size = crop[offset_name], crop[size_name]
+        if offset is None and size is None:
+            continue
+        scale = new[axis] / old[axis]
+        start = min(round((offset or 0) * scale), new[axis] - 1)
+        extent = round((old[axis] if size is None else size) * scale)
+        _set_property(film, "integer", offset_name, start, defines)
+        _set_property(film, "integer", size_name, max(1, min(extent, new[axis] - start)),
+                      defines)
 
 
-def _resolved(root: ET.Element, parent: ET.Element, name: str, default: int,
-              defines: dict) -> int:
+def _resolved(root: ET.Element, parent: ET.Element, name: str, default, defines: dict):
     """The value of ``parent``'s integer property ``name``, its parameter
     resolved through ``defines`` or the scene's ``<default>``."""
     element = parent.find(f"integer[@name='{name}']")
