@@ -393,7 +393,9 @@ def _settle_sampler(sensor: mi.Sensor) -> None:
     and with it its sampler, as an input: a sampler seeded after the first
     render and never before it looked like a changed input, and the second
     render recorded the kernels once more (about 50 ms)."""
-    sensor.sampler().seed(0, 1)
+    sampler = sensor.sampler()
+    if sampler is not None:
+        sampler.seed(0, 1)
 
 
 def _image_block(film: mi.Film, radiance: mi.Color3f, alpha: mi.Float, channels: int):
