@@ -102,13 +102,13 @@ def _quadrant_positions(origins: mi.Point2f, size: float) -> mi.Point2f:
     return mi.Point2f(corner + mi.Vector2f(qx, qy) * opaque_float(size))
 
 
-def _differs(colors: mi.Color3f, threshold: float) -> mi.Bool:
-    """Per quadrant: whether it differs from the mean of its 3 siblings.
+def _split_codes(colors: mi.Color3f, threshold: float) -> mi.UInt32:
+    """Per cell, a 4-bit code of the quadrants that differ from the mean of
+    their 3 siblings.
 
     Worked out per cell, whose four quadrants are read as one packet per
-    channel, and handed to the quadrants as a 4-bit code: a third of the
-    time of per-quadrant lanes each gathering its siblings (2.2 ms on the
-    first level of the report's scene)."""
+    channel: a third of the time of per-quadrant lanes each gathering its
+    siblings (2.2 ms on the first level of the report's scene)."""
     worst = [mi.Float(0)] * 4
     for channel in range(3):
         quadrants = [dr.clip(value, 0.0, 1.0) for value in read_runs(colors[channel], 4)]
@@ -117,11 +117,27 @@ def _differs(colors: mi.Color3f, threshold: float) -> mi.Bool:
     code = mi.UInt32(0)
     for quadrant, difference in enumerate(worst):
         code |= dr.select(difference > threshold, mi.UInt32(1 << quadrant), 0)
-    # Evaluated once per cell: Dr.Jit would otherwise fold the gather below
-    # into the expression and work it out four times, once per quadrant.
+    return code
+
+
+def _quadrants_to_split(colors: mi.Color3f, threshold: float) -> mi.UInt32:
+    """Indices of the quadrants that differ from their siblings, in order.
+
+    The cells with any are found first and only their quadrants tested:
+    on the report's first level a compaction over its 360,000 cells and
+    one over the few thousand quadrants of the cells found took 0.9 ms
+    less than one over all 1.44 M quadrants."""
+    code = _split_codes(colors, threshold)
+    # Evaluated once per cell: Dr.Jit would otherwise fold it into the
+    # gathers below and work it out once per quadrant.
     dr.eval(code)
-    quadrant = dr.arange(mi.UInt32, dr.width(colors))
-    return (dr.gather(mi.UInt32, code, quadrant >> 2) & (1 << (quadrant & 3))) != 0
+    cells = dr.compress(code != 0)
+    if dr.width(cells) == 0:
+        return cells
+    index = dr.arange(mi.UInt32, 4 * dr.width(cells))
+    cell, quadrant = dr.gather(mi.UInt32, cells, index >> 2), index & 3
+    differs = ((dr.gather(mi.UInt32, code, cell) >> quadrant) & 1) != 0
+    return dr.gather(mi.UInt32, cell * 4 + quadrant, dr.compress(differs))
 
 
 class AdaptiveSampler:
@@ -166,7 +182,7 @@ class AdaptiveSampler:
         is the last (one wait for the device: the compaction's size)."""
         if level >= self.max_depth:
             return None
-        cells = dr.compress(_differs(radiance, self.threshold))
+        cells = _quadrants_to_split(radiance, self.threshold)
         wanted = 4 * dr.width(cells)
         if wanted == 0:
             return None
