@@ -3,6 +3,7 @@
 import subprocess
 import sys
 
+import drjit as dr
 import mitsuba as mi
 import pytest
 
@@ -46,3 +47,14 @@ def test_plugins_follow_variant_changes():
 def test_unknown_variant_is_one_sentence():
     with pytest.raises(ValueError, match="variant 'llvm_ad_rgbx' is not available"):
         mitsuba_whitted.set_variant("llvm_ad_rgbx")
+
+
+def test_a_variant_whose_backend_cannot_start_is_one_sentence():
+    """A CUDA variant without a GPU: a clear error, and the variant that
+    was active stays usable."""
+    if "cuda_ad_rgb" not in mi.variants() or dr.has_backend(dr.JitBackend.CUDA):
+        pytest.skip("this machine has no CUDA variant, or can run it")
+    with pytest.raises(RuntimeError, match="'cuda_ad_rgb' cannot be used on this machine.*NVIDIA"):
+        mitsuba_whitted.set_variant("cuda_ad_rgb")
+    assert mi.variant() == "llvm_ad_rgb"
+    assert isinstance(mi.load_dict({"type": "whitted"}), mi.SamplingIntegrator)

@@ -67,14 +67,23 @@ def registered_plugins() -> list[str]:
 
 def set_variant(variant: str = DEFAULT_VARIANT) -> None:
     """``mi.set_variant`` with a clear error for an LLVM variant when no
-    usable libLLVM is installed."""
+    usable libLLVM is installed, and for a variant whose backend cannot
+    start here (a CUDA variant without an NVIDIA GPU and driver)."""
     if variant.startswith("llvm"):
         llvm.require()
     if variant not in mi.variants():
         raise ValueError(
             f"mitsuba_whitted: variant '{variant}' is not available; "
             f"choose one of {', '.join(mi.variants())}.")
-    mi.set_variant(variant)
+    try:
+        mi.set_variant(variant)
+    except ImportError as error:
+        # Dr.Jit leaves the variant that was active before in place.
+        needs = " (it needs an NVIDIA GPU and its driver)" if variant.startswith("cuda") else ""
+        detail = str(error).splitlines()[0].split(". ")[0]
+        raise RuntimeError(
+            f"mitsuba_whitted: variant '{variant}' cannot be used on this machine: Dr.Jit's "
+            f"backend for it did not start{needs}: {detail}; use '{DEFAULT_VARIANT}'.") from None
 
 
 def load_file(path: str, **defines):
