@@ -88,6 +88,8 @@ def test_info_names_variant_llvm_and_plugins():
     (["render", str(SCENE), "-o", "x.gif", "-D", "res=8"], "cannot write 'x.gif'"),
     (["render", str(SCENE), "-o", "x.png", "--variant", "nope"], "variant 'nope' is not available"),
     (["render", str(SCENE), "-o", "x.png", "--variant", "scalar_rgb"], "whitted: the wavefront integrator needs a JIT variant"),
+    (["render", str(SCENE), "-o", "x.png", "-D", "fov=3"], "Found unused parameters: $fov=3"),
+    (["bench", "--quick", str(ROOT / "Makefile")], "Makefile' is not well-formed XML"),
 ])
 def test_bad_input_is_one_sentence(args, message):
     result = cli(*args, check=False)

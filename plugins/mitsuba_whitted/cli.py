@@ -35,7 +35,13 @@ def one_sentence(error: BaseException) -> str:
         for prefix in ("ParameterError: ", "VariantError: ", "LLVMError: ", "ValueError: "):
             if line.startswith(prefix):
                 return line[len(prefix):]
-    return lines[0] if lines else type(error).__name__
+    if not lines:
+        return type(error).__name__
+    # A heading and its list ("Found unused parameters:" and "- $foo=1").
+    items = [line[1:].strip() for line in lines[1:] if line.startswith("-")]
+    if lines[0].endswith(":") and items:
+        return f"{lines[0]} {', '.join(items)}"
+    return lines[0]
 
 
 class Progress:

@@ -32,7 +32,11 @@ def load_with(path: Path, defines: dict, settings: dict) -> mi.Scene:
     path = Path(path)
     if not settings:
         return load_file(path, **defines)
-    root = ET.parse(path).getroot()
+    try:
+        root = ET.parse(path).getroot()
+    except ET.ParseError as error:
+        raise RuntimeError(f"mitsuba-whitted: scene '{path}' is not well-formed XML "
+                           f"({error}).") from None
     defines = dict(defines)
     for name, value in settings.items():
         if name == "res":
