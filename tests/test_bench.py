@@ -86,9 +86,10 @@ def _bound_of(description):
     whitted.capture_rays = True
     mi.render(loaded)
     whitted.capture_rays = False
-    camera_rays = whitted.last_rays[0]
+    generation, camera_rays = whitted.last_rays[0]
+    assert generation == 0
     hits = dr.count(loaded.ray_intersect(mi.Ray3f(camera_rays.o, camera_rays.d)).is_valid())[0]
-    bound = ray_casting_bound(loaded, whitted.make_tracer(loaded), whitted.last_rays, 1,
+    bound = ray_casting_bound(loaded, whitted.make_tracer(loaded), whitted.last_rays,
                               lambda: mi.render(loaded), 2)
     return bound, whitted.last_stats, hits
 
@@ -116,3 +117,16 @@ def test_the_bound_of_a_scene_without_shadow_rays():
     assert hits > 0
     assert stats["shadow"] == bound.rays["ray_test"] == bound.rays["shadow_march"] == 0
     assert bound.seconds_by_cast["ray_test"] == 0 and bound.seconds > 0
+
+
+def test_a_replay_that_casts_other_rays_is_refused():
+    """Rounding may move a grazing ray, a different set of rays may not."""
+    import pytest
+    from mitsuba_whitted.bench import Bound, _check_replay
+    counts = {"ray_intersect": 5000, "ray_test": 4000, "shadow_march": 600}
+    bound = Bound(counts, {cast: 0.001 for cast in counts}, {cast: False for cast in counts},
+                  0.01, [0.3])
+    _check_replay(bound, {"shadow": 4002, "shadow_march": 600})
+    with pytest.raises(RuntimeError, match="replayed 600 rays for shadow_march where the "
+                                           "render cast 700"):
+        _check_replay(bound, {"shadow": 4000, "shadow_march": 700})

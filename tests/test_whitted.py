@@ -161,9 +161,9 @@ def test_bench_replays_the_marched_shadow_rays():
     from mitsuba_whitted.bench import march_rays_of, shadow_rays_of
     shadow_rays, blocked = expected_shadow_rays("perspective")
     loaded, whitted = render_march_scene("perspective", capture=True)
-    (camera_rays,) = whitted.last_rays
-    shadow, targets = shadow_rays_of(loaded, mi.Ray3f(camera_rays.o, camera_rays.d), 1)
-    march = march_rays_of(loaded, whitted.make_tracer(loaded), shadow, targets)
+    tracer = whitted.make_tracer(loaded)
+    shadow, targets = shadow_rays_of(loaded, tracer, whitted.last_rays)
+    march = march_rays_of(loaded, tracer, shadow, targets)
     assert (dr.width(shadow.o), dr.width(march.o)) == (shadow_rays, 3 * blocked)
 
 

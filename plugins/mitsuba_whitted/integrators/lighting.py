@@ -195,21 +195,33 @@ class DirectLighting:
         passed, marched = self.shadows.transmittance(si, ds.p, lit)
         return contribution * passed, ShadowRays(mi.UInt32(lit), marched)
 
+    def sample_points(self, key: mi.UInt32, index: int):
+        """Where the shadow rays of ray ``key`` sample the ``index``-th of
+        ``needs.sampled_lights``: ``point(s)`` for the s-th of them."""
+        rotation = _unit_pair(key, self.settings.seed * 7919 + index)
+
+        def point(sample) -> mi.Point2f:
+            step = mi.Float(sample)
+            u = mi.Point2f(rotation[0] + step * R2_STEP[0], rotation[1] + step * R2_STEP[1])
+            return u - dr.floor(u)
+
+        return point
+
+    def lights_reach(self, light, si: mi.SurfaceInteraction3f, active: mi.Bool) -> mi.Bool:
+        """Where a sampled ``light`` is tested from ``si`` at all."""
+        return active & ~_on_own_shape(light, si)
+
     @dr.syntax
     def _sampled(self, light, index, si, bsdf, key, active):
         """Mean of ``emitter_samples`` shadow rays, spread by the R2 sequence."""
         count = self.settings.emitter_samples
-        active = active & ~_on_own_shape(light, si)
-        rotation = _unit_pair(key, self.settings.seed * 7919 + index)
+        active = self.lights_reach(light, si, active)
+        point = self.sample_points(key, index)
         total = mi.Color3f(0)
         rays = ShadowRays(mi.UInt32(0), mi.UInt32(0))
         s = mi.UInt32(0)
         while active & (s < count):
-            step = mi.Float(s)
-            u = mi.Point2f(rotation[0] + step * R2_STEP[0],
-                           rotation[1] + step * R2_STEP[1])
-            u -= dr.floor(u)
-            radiance, cast = self._from_light(light, si, bsdf, u, active)
+            radiance, cast = self._from_light(light, si, bsdf, point(s), active)
             total += radiance
             rays += cast
             s += 1

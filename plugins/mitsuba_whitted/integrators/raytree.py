@@ -87,8 +87,9 @@ class Tracer:
         self.settings = shader.settings
         self.intersect = intersect
         self.refiner = refiner
-        #: When a list, every traced batch is appended to it (benchmarks
-        #: replay the very same rays through Mitsuba's own ray casting).
+        #: When a list, ``(generation, batch)`` of every traced batch is
+        #: appended to it (benchmarks replay the very same rays through
+        #: Mitsuba's own ray casting).
         self.captured = None
         self._start()
 
@@ -141,7 +142,7 @@ class RayTreeTracer(Tracer):
         self.stats.batches += 1
         self.stats.generations = max(self.stats.generations, generation + 1)
         if self.captured is not None:
-            self.captured.append(rays)
+            self.captured.append((generation, rays))
         local, alpha, children, slots = self._shade(rays, generation)
         if children is None:
             return local, alpha

@@ -169,7 +169,8 @@ class WhittedIntegrator(mi.SamplingIntegrator):
 
     @property
     def last_rays(self):
-        """The ray batches of the last render, if ``capture_rays`` was set."""
+        """``(generation, ray batch)`` of every batch the last render traced,
+        if ``capture_rays`` was set."""
         return self._last.rays
 
     @last_rays.setter
