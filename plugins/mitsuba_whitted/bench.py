@@ -44,6 +44,7 @@ from .compare.scene_report import machine
 from .compare.sweep import CONTRAST_AA, RELATION_PREFIX, speedup_text
 from .integrators.lighting import MAX_SHADOW_CROSSINGS
 from .integrators.offsets import spawn_ray_to
+from .system import proc_field
 
 DEFAULT_SCENE = Path(__file__).resolve().parents[2] / "scenes" / "cosc363.xml"
 
@@ -55,13 +56,9 @@ def peak_rss_mib() -> float:
     ``ru_maxrss`` also keeps what its parent had resident when it started
     this process (Linux carries the larger over fork and exec): a child of
     the benchmark read the benchmark's 0.9 GiB whatever it rendered."""
-    try:
-        with open("/proc/self/status") as status:
-            for line in status:
-                if line.startswith("VmHWM:"):
-                    return int(line.split()[1]) / 1024
-    except OSError:
-        pass
+    high_water = proc_field("/proc/self/status", "VmHWM")  # "1234 kB"
+    if high_water is not None:
+        return int(high_water.split()[0]) / 1024
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KiB on Linux
 
 
@@ -115,10 +112,8 @@ def shadow_rays_of(scene: mi.Scene, tracer, captured: list):
         parts = [part for generation, batch in captured
                  if tracer.shader.work(generation).light is not False
                  for part in _shadow_parts(tracer, batch)]
-    ray = mi.Ray3f(_joined(mi.Point3f, [p[0].o for p in parts]),
-                   _joined(mi.Vector3f, [p[0].d for p in parts]))
-    ray.maxt = _concat(mi.Float, [p[0].maxt for p in parts])
-    return ray, _joined(mi.Point3f, [p[1] for p in parts])
+    return (_joined_rays([ray for ray, _ in parts]),
+            _joined(mi.Point3f, [target for _, target in parts]))
 
 
 def _shadow_parts(tracer, batch) -> list:
@@ -212,10 +207,10 @@ class Bound:
         return statistics.median(self.ratios)
 
 
-#: The casts of the bound: Mitsuba's call, and the rays it replays.
-CASTS = {"ray_intersect": "camera, reflected and refracted rays",
-         "ray_test": "shadow rays",
-         "shadow_march": "closest-hit queries of blocked shadow rays (ray_intersect)"}
+#: The casts of the bound: ``ray_intersect`` of the camera, reflected and
+#: refracted rays, ``ray_test`` of the shadow rays, and ``shadow_march``,
+#: ``ray_intersect`` of the closest-hit queries of blocked shadow rays.
+CASTS = ("ray_intersect", "ray_test", "shadow_march")
 
 
 def _faster_mode(cast) -> bool:
@@ -240,19 +235,20 @@ def _check_modes_agree(scene: mi.Scene, rays: mi.Ray3f, shadow: mi.Ray3f) -> Non
     overload, would not). Empty batches are left out: Dr.Jit aborts the
     process on a cast of an array that was never filled."""
     def hits(coherent):
-        found = []
+        found = {}
         if dr.width(rays.o):
-            found.append(dr.count(scene.ray_intersect(rays, ray_flags=mi.RayFlags.All,
-                                                      coherent=coherent).is_valid())[0])
+            found["closest"] = dr.count(scene.ray_intersect(
+                rays, ray_flags=mi.RayFlags.All, coherent=coherent).is_valid())[0]
         if dr.width(shadow.o):
-            found.append(dr.count(scene.ray_test(shadow, coherent=coherent))[0])
+            found["shadow"] = dr.count(scene.ray_test(shadow, coherent=coherent))[0]
         return found
 
-    found = {coherent: hits(coherent) for coherent in (False, True)}
-    for incoherent, coherent in zip(found[False], found[True]):
-        if abs(incoherent - coherent) > ROUNDING_SHARE * max(incoherent, coherent, 1):
+    incoherent, coherent = hits(False), hits(True)
+    for kind, count in incoherent.items():
+        if abs(count - coherent[kind]) > ROUNDING_SHARE * max(count, coherent[kind], 1):
             raise RuntimeError(f"mitsuba-whitted bench: Embree's coherent and incoherent "
-                               f"modes found different hits (closest, shadow): {found}")
+                               f"modes found different {kind} hits: {coherent[kind]} and "
+                               f"{count}.")
 
 
 def _check_replay(bound: Bound, stats: dict) -> None:

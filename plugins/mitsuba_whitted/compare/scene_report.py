@@ -16,6 +16,7 @@ import mitsuba as mi
 import numpy as np
 
 from .. import load_file
+from ..system import proc_field
 from .cache import ReferenceCache, cache_key, scene_digest
 from .metrics import missing_energy_share, missing_light, noise_rel_mse, rel_squared_error
 from .reference import Reference, cached_reference, path_settings
@@ -140,14 +141,7 @@ def machine() -> str:
 def _cpu_model() -> str:
     """The processor's name (Linux), which timings depend on as much as on
     the core count; "unknown CPU" where the system does not say."""
-    try:
-        with open("/proc/cpuinfo") as info:
-            for line in info:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return "unknown CPU"
+    return proc_field("/proc/cpuinfo", "model name") or "unknown CPU"
 
 
 def _cpu_count() -> int:
