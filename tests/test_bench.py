@@ -39,12 +39,39 @@ def test_bench_quick_writes_every_figure(tmp_path):
         assert bound[f"{cast}_s"] > 0 and isinstance(bound[f"{cast}_coherent"], bool)
     assert bound["seconds"] == sum(bound[f"{cast}_s"] for cast in
                                    ("ray_intersect", "ray_test", "shadow_march"))
+    split = figures["split"]
+    assert split["first_launch_samples"] == 4 * 96 * 96  # the first adaptive level
+    assert split["launches"] >= 2 and split["frozen_call_s"] > 0
+    for part in ("first_launch", "rest"):
+        assert split[f"{part}_s"] > 0 and split[f"{part}_bound_s"] > 0
+        assert split[f"{part}_ratio"] > 0
     assert {row["parameter"] for row in figures["scaling"]} == {"res", "max_depth", "aa_max_depth"}
     assert all(row["seconds"] > 0 for row in figures["scaling"])
     assert all(mib > 0 for mib in figures["peak_rss_mib"].values())
     assert figures["equal_error"]["speedup"] > 0
     table = result.stdout
     assert "bound / actual" in table and "equal-error speed-up" in table
+    assert "first camera launch" in table and "a frozen call's fixed cost" in table
+
+
+def test_the_first_launch_ends_after_its_camera_samples():
+    """A launch traces its camera rays in parts, each part's generations
+    in turn: the first launch's batches end where a generation 0 starts
+    after all its samples."""
+    from mitsuba_whitted.bench import _first_launch_end
+
+    class Batch:
+        def __init__(self, n):
+            self.n = n
+
+        def __len__(self):
+            return self.n
+
+    captured = [(0, Batch(6)), (1, Batch(4)), (0, Batch(4)), (1, Batch(2)), (2, Batch(1)),
+                (0, Batch(8)), (1, Batch(3)), (0, Batch(8))]
+    assert _first_launch_end(captured, 10) == 5
+    assert _first_launch_end(captured, 6) == 2
+    assert _first_launch_end(captured[:5], 10) == 5  # a single launch: all of it
 
 
 def test_a_child_reports_its_own_peak_memory_not_its_parents():

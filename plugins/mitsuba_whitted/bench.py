@@ -276,6 +276,17 @@ def _casts(scene: mi.Scene, rays: mi.Ray3f, shadow: mi.Ray3f, march: mi.Ray3f) -
             "shadow_march": (intersecting(march), march)}
 
 
+def _replayed_rays(scene: mi.Scene, tracer, captured: list) -> tuple:
+    """The closest-hit rays of the ``captured`` ``(generation, batch)``
+    pairs, the shadow rays ``tracer`` casts from their hits and the queries
+    its shadow tester marches them with."""
+    rays = _joined_rays([batch for _, batch in captured])
+    shadow, targets = shadow_rays_of(scene, tracer, captured)
+    march = march_rays_of(scene, tracer, shadow, targets)
+    dr.eval(rays, shadow, march)
+    return rays, shadow, march
+
+
 def ray_casting_bound(scene: mi.Scene, tracer, captured: list, render,
                       repeats: int) -> Bound:
     """Mitsuba's own ray casting for the ``captured`` ``(generation,
@@ -284,10 +295,7 @@ def ray_casting_bound(scene: mi.Scene, tracer, captured: list, render,
     rounds of ``render()`` and each cast, each cast in whichever of Embree's
     coherent and incoherent modes is the faster for its rays (the
     integrator uses both)."""
-    rays = _joined_rays([batch for _, batch in captured])
-    shadow, targets = shadow_rays_of(scene, tracer, captured)
-    march = march_rays_of(scene, tracer, shadow, targets)
-    dr.eval(rays, shadow, march)
+    rays, shadow, march = _replayed_rays(scene, tracer, captured)
     _check_modes_agree(scene, rays, shadow)
     casts = _casts(scene, rays, shadow, march)
     counts = {name: dr.width(batch.o) for name, (_, batch) in casts.items()}
@@ -301,6 +309,106 @@ def ray_casting_bound(scene: mi.Scene, tracer, captured: list, render,
                for name in casts}
     return Bound(counts, seconds, coherent, statistics.median([row[0] for row in rounds]),
                  [sum(row[1:]) / row[0] for row in rounds])
+
+
+# ------------------------------------------------- where the time goes
+
+
+@dataclass
+class LaunchSplit:
+    """A render cut where its first camera launch ends (for adaptive
+    anti-aliasing: the first level, four samples in every pixel), each part
+    beside the ray casting of its own rays. Medians over rounds of a render
+    and the casts of both parts."""
+    first_samples: int
+    #: From the render's start to the end of the first launch's tracing.
+    first_seconds: float
+    first_bound: float
+    first_ratios: list
+    #: The rest: every later launch (the refinement levels), the choice of
+    #: what to refine, the combination of the levels and the film.
+    rest_seconds: float
+    rest_bound: float
+    rest_ratios: list
+    #: Camera launches, and the fixed cost of one frozen call taking the
+    #: scene (Dr.Jit traverses its inputs at every call).
+    launches: int
+    frozen_call_seconds: float
+
+
+class _FirstLaunchClock:
+    """An integrator ``progress`` callback: the time at which the first
+    launch's samples are all traced (the frozen kernels have launched their
+    work when ``progress`` is called; the clock waits for it)."""
+
+    def __init__(self):
+        self.done_at = None
+
+    def __call__(self, done: int, expected: int, message: str) -> None:
+        if self.done_at is None and done == expected:
+            dr.sync_thread()
+            self.done_at = time.perf_counter()
+
+
+def _first_launch_end(captured: list, samples: int) -> int:
+    """Index in ``captured`` of the first batch of the second launch: the
+    first launch traced ``samples`` camera rays, in one or more parts, each
+    part's generations in turn."""
+    camera = 0
+    for index, (generation, batch) in enumerate(captured):
+        if generation == 0:
+            if camera == samples:
+                return index
+            camera += len(batch)
+    return len(captured)
+
+
+def frozen_call_seconds(scene: mi.Scene, calls: int = 50) -> float:
+    """Median time of a frozen call that takes ``scene`` and adds 1 to 16
+    numbers: what every launch of the integrator's frozen kernels pays
+    before any of its work, whatever its size."""
+    probe = dr.arange(mi.Float, 16)
+    frozen = dr.freeze(lambda scene, value: value + 1)
+    times = timed(lambda: frozen(scene, probe), calls + 2)[1]
+    return statistics.median(times[2:])
+
+
+def launch_split(scene: mi.Scene, integrator, captured: list, first_samples: int,
+                 coherent: dict, repeats: int) -> LaunchSplit:
+    """Time the first camera launch and the rest of a render against the
+    ray casting of each part's own rays (in the modes of ``coherent``), in
+    ``repeats`` rounds."""
+    end = _first_launch_end(captured, first_samples)
+    tracer = integrator.make_tracer(scene)
+    parts = [_casts(scene, *_replayed_rays(scene, tracer, part))
+             for part in (captured[:end], captured[end:])]
+    steps = [[lambda cast=cast, name=name: cast(coherent[name])
+              for name, (cast, batch) in casts.items() if dr.width(batch.o)]
+             for casts in parts]
+
+    def clocked_render():
+        clock = _FirstLaunchClock()
+        integrator.progress = clock
+        start = time.perf_counter()
+        try:
+            mi.render(scene, integrator=integrator)
+            dr.sync_thread()
+        finally:
+            integrator.progress = None
+        finish = time.perf_counter()
+        return clock.done_at - start, finish - clock.done_at
+
+    rounds = []
+    for _ in range(repeats):
+        first, rest = clocked_render()
+        bounds = [sum(timed(step, 1)[1][0] for step in part) for part in steps]
+        rounds.append((first, rest, *bounds))
+    first, rest, first_bound, rest_bound = (statistics.median(column)
+                                            for column in zip(*rounds))
+    return LaunchSplit(first_samples, first, first_bound,
+                       [row[2] / row[0] for row in rounds], rest, rest_bound,
+                       [row[3] / row[1] for row in rounds],
+                       integrator.last_stats["batches"], frozen_call_seconds(scene))
 
 
 # -------------------------------------------------------- fresh processes
@@ -513,11 +621,16 @@ def headline(scene_path: Path, settings: BenchSettings, report) -> dict:
     integrator.capture_rays = True
     mi.render(scene, integrator=integrator)
     integrator.capture_rays = False
-    bound = ray_casting_bound(scene, integrator.make_tracer(scene), integrator.last_rays,
+    captured, first_samples = integrator.last_rays, integrator.last_stats["aa_per_level"][0]
+    integrator.last_rays = None
+    bound = ray_casting_bound(scene, integrator.make_tracer(scene), captured,
                               lambda: mi.render(scene, integrator=integrator),
                               settings.bound_rounds)
     _check_replay(bound, integrator.last_stats)
-    integrator.last_rays = None
+    report("timing the first launch and the rest apart ...")
+    split = launch_split(scene, integrator, captured, first_samples, bound.coherent,
+                         settings.bound_rounds)
+    del captured
     return {
         "scene": str(scene_path), "defines": settings.defines,
         "settings": settings.scene_settings,
@@ -535,6 +648,12 @@ def headline(scene_path: Path, settings: BenchSettings, report) -> dict:
                                             ("coherent", bound.coherent))},
                   "seconds": bound.seconds, "render_s": bound.render_seconds,
                   "ratio": bound.ratio, "ratios": bound.ratios},
+        "split": {"first_launch_samples": split.first_samples,
+                  "first_launch_s": split.first_seconds, "first_launch_bound_s": split.first_bound,
+                  "first_launch_ratio": statistics.median(split.first_ratios),
+                  "rest_s": split.rest_seconds, "rest_bound_s": split.rest_bound,
+                  "rest_ratio": statistics.median(split.rest_ratios),
+                  "launches": split.launches, "frozen_call_s": split.frozen_call_seconds},
         "peak_rss_mib_this_process": peak_rss_mib(),
     }
 
@@ -568,6 +687,21 @@ def _mode(coherent: bool) -> str:
     return "coherent" if coherent else "incoherent"
 
 
+def _split_lines(split: dict) -> list:
+    more = split["launches"] - 1
+    return [
+        f"    first camera launch       {split['first_launch_s']:8.3f} s, its rays' bound "
+        f"{split['first_launch_bound_s']:.3f} s: {split['first_launch_ratio']:.2f}"
+        f"  ({split['first_launch_samples']:,} samples, from the render's start)",
+        f"    the rest                  {split['rest_s']:8.3f} s, its rays' bound "
+        f"{split['rest_bound_s']:.3f} s: {split['rest_ratio']:.2f}"
+        f"  ({more} more launch{'es' if more != 1 else ''}, what to refine, combining, film)",
+        f"    a frozen call's fixed cost {split['frozen_call_s'] * 1e3:7.2f} ms (Dr.Jit traverses"
+        f" the scene at every call) x {split['launches']} launches = "
+        f"{split['frozen_call_s'] * split['launches'] * 1e3:.1f} ms",
+    ]
+
+
 def format_table(results: dict) -> str:
     """The benchmark as a plain-text table."""
     rays = results["rays"]
@@ -599,6 +733,7 @@ def format_table(results: dict) -> str:
         f"  bound / actual              {bound['ratio']:8.2f}  (median of {len(bound['ratios'])}"
         f" rounds of render and casts: {min(bound['ratios']):.2f}"
         f" to {max(bound['ratios']):.2f}; render {bound['render_s']:.3f} s in those rounds)",
+        *_split_lines(results["split"]),
         "  peak RSS by film width: " + ", ".join(f"{res} px {mib:,.0f} MiB"
                                                for res, mib in results["peak_rss_mib"].items()),
         "  scaling (warm):",
