@@ -687,6 +687,10 @@ def _mode(coherent: bool) -> str:
     return "coherent" if coherent else "incoherent"
 
 
+def _count(number: int, one: str, many: str) -> str:
+    return f"{number} {one if number == 1 else many}"
+
+
 def _split_lines(split: dict) -> list:
     more = split["launches"] - 1
     return [
@@ -695,9 +699,10 @@ def _split_lines(split: dict) -> list:
         f"  ({split['first_launch_samples']:,} samples, from the render's start)",
         f"    the rest                  {split['rest_s']:8.3f} s, its rays' bound "
         f"{split['rest_bound_s']:.3f} s: {split['rest_ratio']:.2f}"
-        f"  ({more} more launch{'es' if more != 1 else ''}, what to refine, combining, film)",
+        f"  ({_count(more, 'later launch', 'later launches')} and all the render does"
+        " between and after them)",
         f"    a frozen call's fixed cost {split['frozen_call_s'] * 1e3:7.2f} ms (Dr.Jit traverses"
-        f" the scene at every call) x {split['launches']} launches = "
+        f" the scene at every call) x {_count(split['launches'], 'launch', 'launches')} = "
         f"{split['frozen_call_s'] * split['launches'] * 1e3:.1f} ms",
     ]
 
