@@ -18,6 +18,11 @@ Mitsuba cannot beat, and bound / actual is the share of the render spent
 casting rays. They are timed in alternating rounds (render, then each cast)
 and the ratio is the median of the rounds' ratios, so that the machine's
 drift from minute to minute falls on all of them alike.
+
+Where the time goes: the render is cut where its first camera launch ends
+(with adaptive anti-aliasing, the first level), and each part is timed
+beside the casting of its own rays; with it, the fixed cost of one frozen
+call taking the scene, which every launch pays whatever its size.
 """
 
 from __future__ import annotations
