@@ -281,6 +281,12 @@ def _casts(scene: mi.Scene, rays: mi.Ray3f, shadow: mi.Ray3f, march: mi.Ray3f) -
             "shadow_march": (intersecting(march), march)}
 
 
+def _nonempty(casts: dict) -> dict:
+    """``cast(coherent)`` of those of ``casts`` that have rays (Dr.Jit aborts
+    the process on a cast of an array that was never filled)."""
+    return {name: cast for name, (cast, batch) in casts.items() if dr.width(batch.o)}
+
+
 def _replayed_rays(scene: mi.Scene, tracer, captured: list) -> tuple:
     """The closest-hit rays of the ``captured`` ``(generation, batch)``
     pairs, the shadow rays ``tracer`` casts from their hits and the queries
@@ -304,7 +310,7 @@ def ray_casting_bound(scene: mi.Scene, tracer, captured: list, render,
     _check_modes_agree(scene, rays, shadow)
     casts = _casts(scene, rays, shadow, march)
     counts = {name: dr.width(batch.o) for name, (_, batch) in casts.items()}
-    cast = {name: function for name, (function, _) in casts.items() if counts[name]}
+    cast = _nonempty(casts)
     coherent = {name: name in cast and _faster_mode(cast[name]) for name in casts}
     steps = [render] + [lambda name=name: cast[name](coherent[name]) for name in cast]
     timed(render, 2)  # record
@@ -339,6 +345,14 @@ class LaunchSplit:
     #: scene (Dr.Jit traverses its inputs at every call).
     launches: int
     frozen_call_seconds: float
+
+    @property
+    def first_ratio(self) -> float:
+        return statistics.median(self.first_ratios)
+
+    @property
+    def rest_ratio(self) -> float:
+        return statistics.median(self.rest_ratios)
 
 
 class _FirstLaunchClock:
@@ -378,17 +392,15 @@ def frozen_call_seconds(scene: mi.Scene, calls: int = 50) -> float:
     return statistics.median(times[2:])
 
 
-def launch_split(scene: mi.Scene, integrator, captured: list, first_samples: int,
+def launch_split(scene: mi.Scene, integrator, tracer, captured: list, first_samples: int,
                  coherent: dict, repeats: int) -> LaunchSplit:
     """Time the first camera launch and the rest of a render against the
-    ray casting of each part's own rays (in the modes of ``coherent``), in
-    ``repeats`` rounds."""
+    ray casting of each part's own rays (those ``tracer`` casts, in the
+    modes of ``coherent``), in ``repeats`` rounds."""
     end = _first_launch_end(captured, first_samples)
-    tracer = integrator.make_tracer(scene)
-    parts = [_casts(scene, *_replayed_rays(scene, tracer, part))
+    parts = [_nonempty(_casts(scene, *_replayed_rays(scene, tracer, part)))
              for part in (captured[:end], captured[end:])]
-    steps = [[lambda cast=cast, name=name: cast(coherent[name])
-              for name, (cast, batch) in casts.items() if dr.width(batch.o)]
+    steps = [[lambda cast=cast, name=name: cast(coherent[name]) for name, cast in casts.items()]
              for casts in parts]
 
     def clocked_render():
@@ -628,12 +640,13 @@ def headline(scene_path: Path, settings: BenchSettings, report) -> dict:
     integrator.capture_rays = False
     captured, first_samples = integrator.last_rays, integrator.last_stats["aa_per_level"][0]
     integrator.last_rays = None
-    bound = ray_casting_bound(scene, integrator.make_tracer(scene), captured,
+    tracer = integrator.make_tracer(scene)
+    bound = ray_casting_bound(scene, tracer, captured,
                               lambda: mi.render(scene, integrator=integrator),
                               settings.bound_rounds)
     _check_replay(bound, integrator.last_stats)
     report("timing the first launch and the rest apart ...")
-    split = launch_split(scene, integrator, captured, first_samples, bound.coherent,
+    split = launch_split(scene, integrator, tracer, captured, first_samples, bound.coherent,
                          settings.bound_rounds)
     del captured
     return {
@@ -655,9 +668,9 @@ def headline(scene_path: Path, settings: BenchSettings, report) -> dict:
                   "ratio": bound.ratio, "ratios": bound.ratios},
         "split": {"first_launch_samples": split.first_samples,
                   "first_launch_s": split.first_seconds, "first_launch_bound_s": split.first_bound,
-                  "first_launch_ratio": statistics.median(split.first_ratios),
+                  "first_launch_ratio": split.first_ratio,
                   "rest_s": split.rest_seconds, "rest_bound_s": split.rest_bound,
-                  "rest_ratio": statistics.median(split.rest_ratios),
+                  "rest_ratio": split.rest_ratio,
                   "launches": split.launches, "frozen_call_s": split.frozen_call_seconds},
         "peak_rss_mib_this_process": peak_rss_mib(),
     }
