@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from conftest import assert_finite
-from mitsuba_whitted.integrators.antialias import (AdaptiveSampler, ContrastSampler,
+from mitsuba_whitted.integrators.antialias import (AdaptiveSampler, Band, ContrastSampler,
                                                    neighbourhood_contrast, render_grid)
 from scenes import camera, integrator, rgb, scene
 
@@ -60,7 +60,7 @@ def reference(max_depth, threshold):
 @pytest.mark.parametrize("max_depth", [0, 1, 4, 7])
 def test_adaptive_matches_reference_recursion(max_depth):
     sampler = AdaptiveSampler(0.25, max_depth, 1e9, warn=pytest.fail)
-    radiance, alpha, count = sampler.render(WIDTH, HEIGHT, edge_shader)
+    radiance, alpha, count = sampler.render(Band.whole(WIDTH, HEIGHT), edge_shader)
     expected, per_level = reference(max_depth, 0.25)
     assert list(count.per_level) == per_level
     image = np.array(radiance.x).reshape(HEIGHT, WIDTH)
@@ -70,7 +70,7 @@ def test_adaptive_matches_reference_recursion(max_depth):
 
 def test_extra_samples_only_in_edge_pixels():
     sampler = AdaptiveSampler(0.25, 5, 1e9, warn=pytest.fail)
-    _, _, count = sampler.render(WIDTH, HEIGHT, edge_shader)
+    _, _, count = sampler.render(Band.whole(WIDTH, HEIGHT), edge_shader)
     samples = np.array(count.per_pixel).reshape(HEIGHT, WIDTH)
     assert (samples[:, 2] > 4).all()
     assert (np.delete(samples, 2, axis=1) == 4).all()
@@ -86,7 +86,7 @@ def noise_shader(positions, keys):
 def test_threshold_zero_on_noise_stops_at_the_budget():
     warnings = []
     sampler = AdaptiveSampler(0.0, 16, 16.0, warn=warnings.append)
-    radiance, _, count = sampler.render(32, 32, noise_shader)
+    radiance, _, count = sampler.render(Band.whole(32, 32), noise_shader)
     assert count.samples <= 16 * 32 * 32
     assert count.budget_hit_at is not None and count.budget_hit_at < 16
     assert len(warnings) == 1 and "aa_budget" in warnings[0]
@@ -94,7 +94,7 @@ def test_threshold_zero_on_noise_stops_at_the_budget():
 
 
 def test_grid_is_the_mean_of_its_samples():
-    radiance, _, count = render_grid(WIDTH, HEIGHT, 3, edge_shader)
+    radiance, _, count = render_grid(Band.whole(WIDTH, HEIGHT), 3, edge_shader)
     image = np.array(radiance.x).reshape(HEIGHT, WIDTH)
     assert count.samples == WIDTH * HEIGHT * 9
     # Column 2: sub-sample centres at 2 + 1/6, 2.5, 2 + 5/6 -> one third white.
@@ -170,7 +170,7 @@ def test_contrast_refines_the_pixels_beside_an_edge_exactly():
     are refined; of 64 Hammersley points in column 2, those with x below
     1/3 are white: (i + 0.5) / 64 < 1/3 for i = 0 ... 20."""
     sampler = ContrastSampler(0.1, 8, 1e9, warn=pytest.fail)
-    radiance, alpha, count = sampler.render(WIDTH, HEIGHT, edge_shader)
+    radiance, alpha, count = sampler.render(Band.whole(WIDTH, HEIGHT), edge_shader)
     image = np.array(radiance.x).reshape(HEIGHT, WIDTH)
     samples = np.array(count.per_pixel).reshape(HEIGHT, WIDTH)
     assert (samples[:, 1:3] == 65).all() and (np.delete(samples, [1, 2], axis=1) == 1).all()
@@ -218,11 +218,11 @@ def edge_errors(render, normal, offset, size=12):
 
 
 def render_contrast_8(width, height, shader):
-    return ContrastSampler(0.1, 8, 1e9, warn=pytest.fail).render(width, height, shader)
+    return ContrastSampler(0.1, 8, 1e9, warn=pytest.fail).render(Band.whole(width, height), shader)
 
 
 def render_grid_8(width, height, shader):
-    return render_grid(width, height, 8, shader)
+    return render_grid(Band.whole(width, height), 8, shader)
 
 
 @pytest.mark.parametrize("normal", [(1.0, 0.0), (0.0, -1.0)])
@@ -253,7 +253,7 @@ def test_contrast_on_sloped_edges_is_as_accurate_as_a_grid():
 def test_contrast_budget_takes_fewer_points_with_a_warning():
     warnings = []
     sampler = ContrastSampler(0.0, 16, 8.0, warn=warnings.append)
-    radiance, _, count = sampler.render(32, 32, noise_shader)
+    radiance, _, count = sampler.render(Band.whole(32, 32), noise_shader)
     assert count.samples <= 8 * 32 * 32
     assert len(warnings) == 1 and "aa_budget" in warnings[0]
     assert np.isfinite(np.array(radiance)).all()
@@ -266,7 +266,7 @@ def test_a_channel_the_shader_broadcasts_is_refined_like_the_others(sampler):
     """noise_shader's blue channel is one value for all samples (width 1):
     refined pixels are scattered into it, so it must come back full width
     and hold that value (a scatter into the width-1 array wrote past it)."""
-    radiance, _, count = sampler.render(16, 16, noise_shader)
+    radiance, _, count = sampler.render(Band.whole(16, 16), noise_shader)
     assert count.samples > 4 * 16 * 16
     assert dr.width(radiance.z) == 16 * 16
     assert np.array_equal(np.array(radiance.z), np.full(16 * 16, 0.5, np.float32))

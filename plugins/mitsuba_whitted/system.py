@@ -16,3 +16,34 @@ def proc_field(path: str, name: str) -> str | None:
     except OSError:
         pass
     return None
+
+
+MEMINFO = "/proc/meminfo"
+#: Where a cgroup (v2, then v1) states the memory its processes may use.
+CGROUP_LIMITS = (("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory.current"),
+                 ("/sys/fs/cgroup/memory/memory.limit_in_bytes",
+                  "/sys/fs/cgroup/memory/memory.usage_in_bytes"))
+
+
+def available_memory() -> int | None:
+    """Bytes this process can still allocate: the kernel's estimate of
+    memory available without swapping (``MemAvailable``), or less where a
+    cgroup limit leaves less. ``None`` where Linux does not say."""
+    available = proc_field(MEMINFO, "MemAvailable")  # "1234 kB"
+    candidates = [int(available.split()[0]) * 1024] if available else []
+    for limit_path, usage_path in CGROUP_LIMITS:
+        limit, usage = _read_int(limit_path), _read_int(usage_path)
+        if limit is not None and usage is not None:
+            candidates.append(max(limit - usage, 0))
+            break
+    return min(candidates) if candidates else None
+
+
+def _read_int(path: str) -> int | None:
+    """A file holding one integer (``max``, as cgroups write "no limit", and
+    absent files are ``None``)."""
+    try:
+        with open(path) as file:
+            return int(file.read().strip())
+    except (OSError, ValueError):
+        return None

@@ -29,6 +29,7 @@ this converges much faster than either.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from itertools import zip_longest
 from typing import Callable
 
 import drjit as dr
@@ -42,7 +43,37 @@ NEIGHBOURS = tuple((dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx
 
 #: ``shade(positions, keys) -> (radiance, alpha)``: positions are in pixel
 #: units inside the crop window, keys identify samples for decorrelation.
+#: A shader may say how many samples it traces in one launch (``batch``).
 ShadeFn = Callable[["mi.Point2f", "mi.UInt32"], tuple]
+
+
+@dataclass(frozen=True)
+class Band:
+    """Rows ``first_row`` to ``first_row + rows - 1`` of a crop window
+    ``width`` x ``height`` pixels: the part of the film one pass renders."""
+    width: int
+    height: int
+    first_row: int
+    rows: int
+
+    @classmethod
+    def whole(cls, width: int, height: int) -> "Band":
+        return cls(width, height, 0, height)
+
+    @property
+    def pixels(self) -> int:
+        return self.width * self.rows
+
+    @property
+    def first_pixel(self) -> int:
+        """Row-major index of the band's first pixel in the crop window."""
+        return self.first_row * self.width
+
+    def widened(self, margin: int) -> "Band":
+        """The band with up to ``margin`` more rows above and below."""
+        first = max(self.first_row - margin, 0)
+        last = min(self.first_row + self.rows + margin, self.height)
+        return Band(self.width, self.height, first, last - first)
 
 
 @dataclass
@@ -54,6 +85,20 @@ class SampleCount:
     budget_hit_at: int | None = None
     #: Camera samples per pixel (row-major), for adaptive sampling.
     per_pixel: object = None
+    #: Samples beyond the pattern's fixed first pass (their keys follow
+    #: those of the first pass of the whole film).
+    refined: int = 0
+
+    def add(self, band: "SampleCount") -> None:
+        """Count a band's samples in with those of the bands before it."""
+        self.samples += band.samples
+        self.refined += band.refined
+        self.levels = max(self.levels, band.levels)
+        self.per_level = tuple(a + b for a, b in zip_longest(self.per_level, band.per_level,
+                                                               fillvalue=0))
+        if band.budget_hit_at is not None:
+            self.budget_hit_at = min(band.budget_hit_at, self.budget_hit_at or band.budget_hit_at)
+        self.per_pixel = band.per_pixel
 
 
 def _traced(shade: ShadeFn, positions: mi.Point2f, keys: mi.UInt32) -> tuple:
@@ -65,13 +110,17 @@ def _traced(shade: ShadeFn, positions: mi.Point2f, keys: mi.UInt32) -> tuple:
     return full_width(radiance), full_width(alpha)
 
 
-def _grid_positions(width: int, height: int, n: int):
-    """Centres of an n x n grid in every pixel, pixel-major."""
-    index = dr.arange(mi.UInt32, width * height * n * n)
-    pixel, sub = index // (n * n), index % (n * n)
+def _grid_positions(width: int, first_pixel: int, pixels: int, n: int):
+    """Centres of an n x n grid in each of ``pixels`` pixels from
+    ``first_pixel`` on (row-major in a crop window ``width`` wide),
+    pixel-major, and their keys: each sample's index in that order over
+    the whole crop window."""
+    index = dr.arange(mi.UInt32, pixels * n * n)
+    pixel = index // (n * n) + dr.opaque(mi.UInt32, first_pixel)
+    sub = index % (n * n)
     x = mi.Float(pixel % width) + (mi.Float(sub % n) + 0.5) / n
     y = mi.Float(pixel // width) + (mi.Float(sub // n) + 0.5) / n
-    return mi.Point2f(x, y)
+    return mi.Point2f(x, y), index + dr.opaque(mi.UInt32, first_pixel * n * n)
 
 
 def _block_means(radiance: mi.Color3f, alpha: mi.Float, block: int) -> tuple:
@@ -80,14 +129,33 @@ def _block_means(radiance: mi.Color3f, alpha: mi.Float, block: int) -> tuple:
     return sum_blocks(radiance, block) * scale, sum_blocks(alpha, block) * scale
 
 
-def render_grid(width: int, height: int, n: int, shade: ShadeFn):
-    """Box-filtered pixels from n x n stratified samples (n = 1: centres)."""
-    positions = _grid_positions(width, height, n)
-    radiance, alpha = _traced(shade, positions, dr.arange(mi.UInt32, dr.width(positions)))
-    count = SampleCount(dr.width(positions), 0, (dr.width(positions),))
+def render_grid(band: Band, n: int, shade: ShadeFn):
+    """Box-filtered pixels of ``band`` from n x n stratified samples (n = 1:
+    centres). The samples are traced a launch of whole pixels at a time and
+    only their means kept, so memory follows the pixels, not the samples."""
+    per_pixel = n * n
+    launch = max(1, getattr(shade, "batch", band.pixels * per_pixel) // per_pixel)
+    count = SampleCount(band.pixels * per_pixel, 0, (band.pixels * per_pixel,))
+    if band.pixels <= launch:
+        return _grid_means(band, 0, band.pixels, n, shade) + (count,)
+    radiance, alpha = dr.empty(mi.Color3f, band.pixels), dr.empty(mi.Float, band.pixels)
+    for start in range(0, band.pixels, launch):
+        stop = min(start + launch, band.pixels)
+        part_radiance, part_alpha = _grid_means(band, start, stop - start, n, shade)
+        target = index_range(start, stop)
+        dr.scatter(radiance, part_radiance, target)
+        dr.scatter(alpha, part_alpha, target)
+    return radiance, alpha, count
+
+
+def _grid_means(band: Band, start: int, pixels: int, n: int, shade: ShadeFn) -> tuple:
+    """Mean radiance and alpha of ``pixels`` pixels of ``band`` from its
+    ``start``-th on."""
+    positions, keys = _grid_positions(band.width, band.first_pixel + start, pixels, n)
+    radiance, alpha = _traced(shade, positions, keys)
     if n == 1:
-        return radiance, alpha, count
-    return _block_means(radiance, alpha, n * n) + (count,)
+        return radiance, alpha
+    return _block_means(radiance, alpha, n * n)
 
 
 def _quadrant_positions(origins: mi.Point2f, size: float) -> mi.Point2f:
@@ -150,15 +218,26 @@ class AdaptiveSampler:
         self.budget_spp = budget_spp
         self.warn = warn
 
-    def render(self, width: int, height: int, shade: ShadeFn):
-        budget = int(self.budget_spp * width * height)
-        origins = mi.Point2f(_grid_positions(width, height, 1) - 0.5)
+    def render(self, band: Band, shade: ShadeFn, first_refined_key: int | None = None):
+        """Pixels of ``band``. Its first level's keys are four per pixel of
+        the crop window; deeper levels' keys start at ``first_refined_key``
+        (default: after the first level of the whole crop window)."""
+        if first_refined_key is None:
+            first_refined_key = 4 * band.width * band.height
+        budget = int(self.budget_spp * band.pixels)
+        centres, _ = _grid_positions(band.width, band.first_pixel, band.pixels, 1)
+        origins = mi.Point2f(centres - 0.5)
         # Every pixel starts with its four quadrant samples.
-        levels, count = [], SampleCount(per_pixel=dr.full(mi.UInt32, 4, width * height))
+        levels, count = [], SampleCount(per_pixel=dr.full(mi.UInt32, 4, band.pixels))
         size = 1.0
         while True:
             positions = _quadrant_positions(origins, size)
-            keys = index_range(count.samples, count.samples + dr.width(positions))
+            if levels:
+                first = first_refined_key + count.refined
+                count.refined += dr.width(positions)
+            else:
+                first = 4 * band.first_pixel
+            keys = index_range(first, first + dr.width(positions))
             radiance, alpha = _traced(shade, positions, keys)
             count.samples += dr.width(positions)
             count.per_level += (dr.width(positions),)
@@ -167,7 +246,8 @@ class AdaptiveSampler:
             if cells is None:
                 break
             centres = dr.gather(mi.Point2f, positions, cells)
-            pixel = mi.UInt32(centres.y) * width + mi.UInt32(centres.x)
+            pixel = ((mi.UInt32(centres.y) - dr.opaque(mi.UInt32, band.first_row)) * band.width
+                     + mi.UInt32(centres.x))
             # A few thousand scattered adds: atomics on the map itself cost
             # less than the per-thread copies Dr.Jit would make of it.
             dr.scatter_reduce(dr.ReduceOp.Add, count.per_pixel, mi.UInt32(4), pixel,
@@ -241,27 +321,49 @@ class ContrastSampler:
         self.budget_spp = budget_spp
         self.warn = warn
 
-    def render(self, width: int, height: int, shade: ShadeFn):
-        pixels = width * height
-        radiance, alpha = _traced(shade, _grid_positions(width, height, 1),
-                                dr.arange(mi.UInt32, pixels))
-        count = SampleCount(pixels, 0, (pixels,), per_pixel=dr.full(mi.UInt32, 1, pixels))
-        contrast = neighbourhood_contrast(radiance, alpha, width, height)
+    def render(self, band: Band, shade: ShadeFn, first_refined_key: int | None = None):
+        """Pixels of ``band``. Centre samples are keyed by their pixel in the
+        crop window; refinement keys start at ``first_refined_key``
+        (default: after the centres of the whole crop window). The centres
+        of the rows next to the band are traced too, as its edge pixels'
+        neighbours."""
+        if first_refined_key is None:
+            first_refined_key = band.width * band.height
+        radiance, alpha, contrast = self._centres(band, shade)
+        count = SampleCount(band.pixels, 0, (band.pixels,),
+                            per_pixel=dr.full(mi.UInt32, 1, band.pixels))
         refined = dr.compress(contrast > self.threshold)
         if dr.width(refined) == 0:
             return radiance, alpha, count
-        samples = self._samples_within_budget(dr.width(refined), pixels)
-        positions = _pattern_positions(refined, width, samples)
-        keys = index_range(pixels, pixels + dr.width(positions))
+        samples = self._samples_within_budget(dr.width(refined), band.pixels)
+        positions = _pattern_positions(refined + dr.opaque(mi.UInt32, band.first_pixel),
+                                       band.width, samples)
+        keys = index_range(first_refined_key, first_refined_key + dr.width(positions))
         fine_radiance, fine_alpha = _traced(shade, positions, keys)
         fine_radiance, fine_alpha = _block_means(fine_radiance, fine_alpha, samples)
         dr.scatter(radiance, fine_radiance, refined)
         dr.scatter(alpha, fine_alpha, refined)
         dr.scatter(count.per_pixel, mi.UInt32(1 + samples), refined)
         count.samples += dr.width(positions)
+        count.refined = dr.width(positions)
         count.per_level += (dr.width(positions),)
         count.levels = 1
         return radiance, alpha, count
+
+    @staticmethod
+    def _centres(band: Band, shade: ShadeFn) -> tuple:
+        """Radiance, alpha and neighbourhood contrast of the centre of each
+        pixel of ``band``."""
+        widened = band.widened(1)
+        positions, keys = _grid_positions(band.width, widened.first_pixel, widened.pixels, 1)
+        radiance, alpha = _traced(shade, positions, keys)
+        contrast = neighbourhood_contrast(radiance, alpha, band.width, widened.rows)
+        if widened == band:
+            return radiance, alpha, contrast
+        start = band.first_pixel - widened.first_pixel
+        inside = index_range(start, start + band.pixels)
+        return (dr.gather(mi.Color3f, radiance, inside), dr.gather(mi.Float, alpha, inside),
+                dr.gather(mi.Float, contrast, inside))
 
     def _samples_within_budget(self, refined: int, pixels: int) -> int:
         """Points per refined pixel: as asked, or fewer (with a warning)

@@ -29,7 +29,7 @@ from ..camera import camera_rays
 from ..jit import index_range, sum_blocks, to_int
 from .frozen import FrozenKernel
 from .bsdf_query import KIND_CODES
-from .shading import HitShader, HitWork
+from .shading import MAX_TREE_RAYS, HitShader, HitWork
 
 
 @dataclass
@@ -44,6 +44,9 @@ class RayStats:
     shadow_march: object = 0
     #: Hits on analytic proxies made exact (not extra rays).
     refined: object = 0
+    #: Rays of the kinds above (counted when spawned) left untraced because
+    #: their tree reached ``MAX_TREE_RAYS``.
+    cut: object = 0
     generations: object = 0
     batches: int = 0
 
@@ -53,6 +56,7 @@ class RayStats:
         counts = {kind: to_int(getattr(self, kind)) for kind in self.KINDS}
         counts["total"] = sum(counts.values())
         counts["refined"] = to_int(self.refined)
+        counts["cut"] = to_int(self.cut)
         counts["generations"] = to_int(self.generations)
         counts["batches"] = self.batches
         return counts
@@ -111,6 +115,11 @@ class Tracer:
         """Most camera samples given to ``trace_camera`` at once."""
         return self.settings.wavefront_size
 
+    @property
+    def launch_rays(self) -> int:
+        """About the most rays in flight at once, for the memory estimate."""
+        return self.camera_batch
+
     def trace_camera(self, sensor: mi.Sensor, positions: mi.Point2f, keys: mi.UInt32):
         """``trace`` of the camera rays through ``positions`` (pixel units
         in the crop window)."""
@@ -133,12 +142,44 @@ class RayTreeTracer(Tracer):
         #: (measured: a kernel recorded with children replayed without).
         self._generation = {}
 
-    def trace(self, rays: RayBatch):
-        """Radiance and alpha (primary hit) of each camera ray."""
-        self.stats.camera += len(rays)
-        return self._trace(rays, 0)
+    @property
+    def launch_rays(self) -> int:
+        # A generation and its compacted children.
+        return self.camera_batch * (1 + self.fan_out)
 
-    def _trace(self, rays: RayBatch, generation: int):
+    def trace(self, rays: RayBatch):
+        """Radiance and alpha (primary hit) of each camera ray.
+
+        Depth first over parts of at most ``wavefront_size`` rays, with the
+        generations whose children are still being traced on a list rather
+        than on Python's call stack, so any depth can be traced. The trees
+        of one call add at most ``MAX_TREE_RAYS - 1`` rays per camera ray;
+        a part that would pass that is left untraced (and counted)."""
+        self.stats.camera += len(rays)
+        rays_left = (MAX_TREE_RAYS - 1) * len(rays)
+        pending, result = [], self._visit(rays, 0)
+        while True:
+            if isinstance(result, _Generation):
+                pending.append(result)
+            elif not pending:
+                return result
+            else:
+                pending[-1].fold(result[0])
+            part = pending[-1].next_part(self.settings.wavefront_size)
+            if part is None:
+                result = pending.pop().radiance()
+                continue
+            children = pending[-1].children.take(part)
+            if len(children) > rays_left:
+                self.stats.cut += len(children)
+                result = dr.zeros(mi.Color3f, len(children)), None
+            else:
+                rays_left -= len(children)
+                result = self._visit(children, pending[-1].generation + 1)
+
+    def _visit(self, rays: RayBatch, generation: int):
+        """Shade a batch: its radiance and alpha if it has no children, else
+        a :class:`_Generation` waiting for them."""
         self.stats.batches += 1
         self.stats.generations = max(self.stats.generations, generation + 1)
         if self.captured is not None:
@@ -146,13 +187,7 @@ class RayTreeTracer(Tracer):
         local, alpha, children, slots = self._shade(rays, generation)
         if children is None:
             return local, alpha
-        folded = dr.zeros(mi.Color3f, len(rays) * self.fan_out)
-        step = self.settings.wavefront_size
-        for start in range(0, len(children), step):
-            part = index_range(start, min(start + step, len(children)))
-            radiance, _ = self._trace(children.take(part), generation + 1)
-            dr.scatter(folded, radiance, dr.gather(mi.UInt32, slots, part))
-        return local + sum_blocks(folded, self.fan_out), alpha
+        return _Generation(generation, local, alpha, children, slots, self.fan_out)
 
     def _shade(self, rays: RayBatch, generation: int):
         """Local radiance and alpha of one generation, its compacted children
@@ -236,3 +271,34 @@ class RayTreeTracer(Tracer):
         reflected = dr.count(codes == KIND_CODES["reflection"])
         self.stats.reflection = self.stats.reflection + reflected
         self.stats.refraction = self.stats.refraction + (count - reflected)
+
+
+class _Generation:
+    """A shaded batch whose children are traced part by part: each part's
+    radiance is folded into its parents' slots (parent x fan-out +
+    component), and summed per parent in component order once all are in."""
+
+    def __init__(self, generation: int, local, alpha, children: RayBatch, slots, fan_out: int):
+        self.generation = generation
+        self.local, self.alpha = local, alpha
+        self.children, self.slots = children, slots
+        self.fan_out = fan_out
+        self.folded = dr.zeros(mi.Color3f, dr.width(local) * fan_out)
+        self.start = 0
+        self.part = None
+
+    def next_part(self, size: int):
+        """Indices of the next part of the children, ``None`` after the last."""
+        if self.start >= len(self.children):
+            return None
+        stop = min(self.start + size, len(self.children))
+        self.part = index_range(self.start, stop)
+        self.start = stop
+        return self.part
+
+    def fold(self, radiance: mi.Color3f) -> None:
+        """Put the radiance of the current part into its parents' slots."""
+        dr.scatter(self.folded, radiance, dr.gather(mi.UInt32, self.slots, self.part))
+
+    def radiance(self) -> tuple:
+        return self.local + sum_blocks(self.folded, self.fan_out), self.alpha

@@ -19,6 +19,12 @@ from .offsets import spawn_ray
 from .scene_needs import SceneNeeds
 from .scene_ref import ReadsScene, SceneRef
 
+#: Most rays in the tree of one camera sample, itself included: a closed box
+#: of mirrors and glass with no pruning (``min_throughput`` 0) would
+#: otherwise double its rays at every generation and never finish.
+MAX_TREE_RAYS = 1024
+
+
 @dataclass
 class TreeSettings:
     max_depth: int          # Mitsuba's convention, already mapped from -1

@@ -44,7 +44,7 @@ from ..camera import camera_rays
 from .frozen import FrozenKernel
 from .raytree import RayBatch, Tracer
 from .bsdf_query import KIND_CODES
-from .shading import HitShader
+from .shading import MAX_TREE_RAYS, HitShader
 
 #: Most rays one lane's stack holds; deeper trees use the wavefront tracer.
 MAX_STACK = 32
@@ -56,7 +56,8 @@ MAX_STACK = 32
 #: launch instead of six: 6% off its render time.
 LAUNCH_FACTOR = 8
 #: Per-lane counts a kernel returns (``RayStats`` fields).
-COUNTED = ("reflection", "refraction", "passthrough", "shadow", "shadow_march", "refined")
+COUNTED = ("reflection", "refraction", "passthrough", "shadow", "shadow_march", "refined",
+           "cut")
 
 
 def stack_capacity(spawning_generations: int, fan_out: int) -> int:
@@ -214,9 +215,16 @@ class StackTreeTracer(Tracer):
         alpha = mi.Float(0)
         counts = {kind: mi.UInt32(0) for kind in COUNTED}
         deepest = mi.UInt32(0)
+        visited = mi.UInt32(0)
         while live:
             size, ray, live, radiance, alpha, counts, deepest = self._visit(
                 stack, size, ray, radiance, alpha, counts, deepest)
+            # A tree stops at MAX_TREE_RAYS rays; what is still pending is
+            # left untraced and counted.
+            visited += 1
+            full = live & (visited >= MAX_TREE_RAYS)
+            counts["cut"] += dr.select(full, size + 1, 0)
+            live &= ~full
         # Integer sums and maxima: the same totals in any order.
         for index, kind in enumerate(COUNTED):
             dr.scatter_reduce(dr.ReduceOp.Add, total_counts, counts[kind], mi.UInt32(index))

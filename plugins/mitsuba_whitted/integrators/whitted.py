@@ -2,14 +2,17 @@ from __future__ import annotations
 
 import drjit as dr
 import mitsuba as mi
+import numpy as np
 
 from ..jit import index_range
 from ..errors import ParameterError, VariantError, check, check_choice
 from . import antialias
+from .render_plan import Demand, RenderPlan, plan_render
+from .scene_checks import check_emitters, check_placements
 from .analytic import AnalyticRefiner
 from .lighting import DirectLighting, LightingSettings, ShadowTester
 from .raytree import RayBatch, RayTreeTracer
-from .shading import HitShader, TreeSettings
+from .shading import MAX_TREE_RAYS, HitShader, TreeSettings
 from .stacktree import StackTreeTracer
 from .scene_needs import SceneNeeds, analyse
 from .scene_ref import SceneRef, identity
@@ -38,7 +41,9 @@ class WhittedIntegrator(mi.SamplingIntegrator):
        - |int|
        - Longest path, in Mitsuba's convention: -1 is unbounded (until pruned,
          at most 256 generations), 1 shows emitters only, 2 direct light
-         only, 3 one mirror or refraction bounce, ... (Default: 10)
+         only, 3 one mirror or refraction bounce, ... Whatever the depth, the
+         ray tree of one camera sample stops at 1024 rays, with a warning
+         that counts the rays left out. (Default: 10)
      * - ambient
        - |rgb|
        - Ambient light, multiplied by the diffuse albedo of each hit
@@ -59,7 +64,8 @@ class WhittedIntegrator(mi.SamplingIntegrator):
        - |float|
        - Ray-tree pruning (Hall & Greenberg 1983): a reflected or refracted
          ray whose throughput is below this in every channel is not traced.
-         0 traces every ray up to ``max_depth``. (Default: 1e-4)
+         0 traces every ray up to ``max_depth`` and the 1024-ray cap of a
+         tree. (Default: 1e-4)
      * - hide_emitters
        - |bool|
        - Hide directly visible emitters. (Default: false)
@@ -73,7 +79,8 @@ class WhittedIntegrator(mi.SamplingIntegrator):
          high, after Mitchell 1987). (Default: none)
      * - aa_samples
        - |int|
-       - Grid: samples per pixel side. Contrast: a refined pixel takes
+       - Grid: samples per pixel side (``aa_samples``\ :sup:`2` may not pass
+         ``aa_budget``). Contrast: a refined pixel takes
          ``aa_samples``\ :sup:`2` points. (Default: 2)
      * - aa_threshold
        - |float|
@@ -88,10 +95,11 @@ class WhittedIntegrator(mi.SamplingIntegrator):
          0 to 16. (Default: 3)
      * - aa_budget
        - |float|
-       - Adaptive and contrast: most camera samples per pixel, on average
-         over the image. Adaptive refinement stops with a warning where a
-         level would pass it; contrast refinement takes fewer points per
-         pixel, with a warning. (Default: 64)
+       - Most camera samples per pixel, on average over the image (over a
+         band of it, for films cut into bands). A grid may not ask for
+         more; adaptive refinement stops with a warning where a level would
+         pass it; contrast refinement takes fewer points per pixel, with a
+         warning. (Default: 64)
      * - wavefront_size
        - |int|
        - Most rays of one generation in the wavefront tracer; the stack
@@ -115,6 +123,19 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     components) are traced as wavefronts instead, one generation at a time.
     Both give the same image to float rounding. Pixels are box filtered over
     their own area; the film's reconstruction filter is not used.
+
+    The camera samples are placed by ``aa``: a sample count that
+    ``mi.render`` passes (``spp``) and the sensor's sampler are not used,
+    and an ``spp`` passed draws a warning. Before it allocates, a render
+    estimates the memory it needs (the film, the samples of the
+    anti-aliasing, the tracer's launches) and compares it with what the
+    machine has left; a film whose samples would not fit at once is
+    rendered in bands of rows (a cut that depends only on the film's size
+    and these parameters), and a render that cannot fit at all is refused
+    with a sentence naming what to lower. Every emitter's values are checked
+    before each render, and the placements of sensors and shapes when the
+    scene is set up: NaN, infinite or negative amounts of light are refused,
+    naming the object.
 
     .. tabs::
 
@@ -192,6 +213,12 @@ class WhittedIntegrator(mi.SamplingIntegrator):
               f"must be between 0 and {AA_DEPTH_LIMIT} (got {self.aa_max_depth})")
         check(self.aa_budget >= 4, PLUGIN_NAME, "aa_budget",
               f"must be >= 4 samples per pixel (got {self.aa_budget})")
+        if self.aa == "grid":
+            samples = self.aa_samples * self.aa_samples
+            check(samples <= self.aa_budget, PLUGIN_NAME, "aa_samples",
+                  f"asks for {samples} samples per pixel ({self.aa_samples} x "
+                  f"{self.aa_samples}), more than 'aa_budget' allows ({self.aa_budget:g}); "
+                  "lower 'aa_samples' or raise 'aa_budget'")
         check(self.wavefront_size >= 1024, PLUGIN_NAME, "wavefront_size",
               f"must be >= 1024 (got {self.wavefront_size})")
         check(all(c >= 0 for c in self.ambient), PLUGIN_NAME, "ambient",
@@ -204,6 +231,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         """A ray-tree tracer specialised to what ``scene`` contains: the
         stack tracer where its stack is deep enough, else (or when asked,
         e.g. to capture each generation's rays) the wavefront tracer."""
+        check_placements(scene)
         needs = needs or analyse(scene)
         scene_ref = SceneRef(scene)
         refiner = (AnalyticRefiner(scene_ref, needs.analytic_shapes)
@@ -247,65 +275,108 @@ class WhittedIntegrator(mi.SamplingIntegrator):
 
     def render(self, scene: mi.Scene, sensor=0, seed=0, spp=0,
                develop: bool = True, evaluate: bool = True):
-        if isinstance(sensor, int):
-            sensor = scene.sensors()[sensor]
+        sensor = _sensor(scene, sensor)
+        self._note_sample_count(spp)
         film = sensor.film()
-        channels = _prepare_film(film)
+        channels = _film_channels(film)
+        width, height = film.crop_size()
+        film_entries = width * height * (2 * channels - 1 if develop else channels)
+
+        def take(band, radiance, alpha):
+            film.put_block(_image_block(film, band, radiance, alpha, channels))
+
+        self.render_bands(scene, sensor, seed, take, film_entries,
+                          prepare=lambda: film.prepare([]))
+        return film.develop() if develop else mi.TensorXf()
+
+    def render_rows(self, scene: mi.Scene, take, sensor=0, seed=0) -> None:
+        """Render without a film of the whole image: ``take(first_row,
+        rows)`` receives the image band by band, top to bottom, as float32
+        NumPy arrays (rows, width, channels) holding what the film's
+        ``develop`` would (RGB, or RGBA for an RGBA film), so that images
+        larger than memory reach a file one band at a time."""
+        sensor = _sensor(scene, sensor)
+        channels = _film_channels(sensor.film())
+
+        def take_band(band, radiance, alpha):
+            values = [radiance.x, radiance.y, radiance.z] + ([alpha] if channels == 5 else [])
+            rows = np.stack([value.numpy() for value in values], axis=-1)
+            take(band.first_row, rows.reshape(band.rows, band.width, channels - 1))
+
+        self.render_bands(scene, sensor, seed, take_band, film_entries=0)
+
+    def render_bands(self, scene: mi.Scene, sensor: mi.Sensor, seed, take,
+                     film_entries: int, prepare=None) -> None:
+        """Trace the crop window band by band (:mod:`.render_plan`) and hand
+        each band's radiance and alpha to ``take(band, radiance, alpha)``.
+        ``film_entries``: the floats the caller's film holds; ``prepare()``
+        runs once the render is known to fit, before anything large is
+        allocated."""
+        check_emitters(scene)
         _settle_sampler(sensor)
         tracer = self._tracer_for(scene, int(seed))
+        plan = plan_render(self._demand(sensor.film(), tracer, film_entries))
+        if prepare is not None:
+            prepare()
         tracer.captured = [] if self.capture_rays else None
-        width, height = film.crop_size()
+        total = antialias.SampleCount()
         with dr.suspend_grad(), tracer.scene_ref.holding(scene):
-            shade = self._camera_shader(tracer, sensor)
-            radiance, alpha, count = self._sample_pixels(width, height, shade)
-            block = _image_block(film, radiance, alpha, channels)
-        film.put_block(block)
+            shade = CameraShader(tracer, sensor, self.progress)
+            for index, band in enumerate(plan.bands()):
+                shade.label = _band_label(index, plan.band_count)
+                radiance, alpha, count = self._sample_pixels(band, shade, total.refined)
+                _require_finite(radiance, alpha)
+                take(band, radiance, alpha)
+                total.add(count)
+        self._record(tracer, total, plan)
+
+    def _demand(self, film: mi.Film, tracer, film_entries: int) -> Demand:
+        """What a render of ``film`` asks of memory (:mod:`.render_plan`)."""
+        width, height = film.crop_size()
+        kept = self.aa_budget if self.aa in ("adaptive", "contrast") else 1
+        launch = tracer.launch_rays
+        if self.aa == "grid":
+            launch = max(launch, self.aa_samples * self.aa_samples)
+        return Demand(width, height, kept, launch, film_entries, "aa_budget")
+
+    def _record(self, tracer, count: antialias.SampleCount, plan: RenderPlan) -> None:
+        """Keep what the last render did for ``last_stats`` and friends."""
         stats = tracer.statistics()
         stats["aa_samples"] = count.samples
         stats["aa_per_level"] = count.per_level
         stats["aa_levels"] = count.levels
         stats["aa_budget_hit_at"] = count.budget_hit_at
-        self._last.stats, self._last.sample_map = stats, count.per_pixel
+        stats["bands"] = plan.band_count
+        self._last.stats = stats
+        self._last.sample_map = count.per_pixel if plan.band_count == 1 else None
         self._last.rays = tracer.captured
-        return film.develop() if develop else mi.TensorXf()
+        if stats["cut"]:
+            _warn(f"whitted: {stats['cut']:,} rays were left untraced: the ray tree of a "
+                  f"camera sample stops at {MAX_TREE_RAYS} rays; lower 'max_depth' or raise "
+                  "'min_throughput'.")
 
-    def _sample_pixels(self, width, height, shade):
+    def _sample_pixels(self, band, shade, refined_before: int):
+        """Radiance, alpha and sample count of ``band``; its refinement
+        samples' keys follow the ``refined_before`` of the bands above."""
         if self.aa == "adaptive":
             sampler = antialias.AdaptiveSampler(self.aa_threshold, self.aa_max_depth,
                                                 self.aa_budget, _warn)
-            return sampler.render(width, height, shade)
+            return sampler.render(band, shade, 4 * band.width * band.height + refined_before)
         if self.aa == "contrast":
             sampler = antialias.ContrastSampler(self.aa_threshold, self.aa_samples,
                                                 self.aa_budget, _warn)
-            return sampler.render(width, height, shade)
+            return sampler.render(band, shade, band.width * band.height + refined_before)
         n = self.aa_samples if self.aa == "grid" else 1
-        return antialias.render_grid(width, height, n, shade)
+        return antialias.render_grid(band, n, shade)
 
-    def _camera_shader(self, tracer, sensor: mi.Sensor):
-        """``shade(positions, keys)``: trace camera rays through crop pixels,
-        in parts of at most the tracer's ``camera_batch`` rays."""
-        def shade(positions: mi.Point2f, keys: mi.UInt32):
-            total = dr.width(positions)
-            radiance, alpha = dr.empty(mi.Color3f, total), dr.empty(mi.Float, total)
-            for start in range(0, total, tracer.camera_batch):
-                stop = min(start + tracer.camera_batch, total)
-                if stop - start == total:
-                    # The whole batch in one part (every adaptive level after
-                    # the first): no copies in and out.
-                    radiance, alpha = tracer.trace_camera(sensor, positions, keys)
-                else:
-                    part = index_range(start, stop)
-                    part_radiance, part_alpha = tracer.trace_camera(
-                        sensor, dr.gather(mi.Point2f, positions, part),
-                        dr.gather(mi.UInt32, keys, part))
-                    dr.scatter(radiance, part_radiance, part)
-                    dr.scatter(alpha, part_alpha, part)
-                if self.progress is not None:
-                    self.progress(stop, total, "camera samples")
-            dr.eval(radiance, alpha)
-            return radiance, alpha
-
-        return shade
+    def _note_sample_count(self, spp: int) -> None:
+        """``mi.render(..., spp=N)``: whitted places its own camera samples
+        (``aa``, ``aa_samples``), so a count passed in is not used; say so
+        once per integrator rather than ignore it silently."""
+        if spp and not self._last.spp_noted:
+            self._last.spp_noted = True
+            _warn(f"whitted: spp={spp} is not used: whitted places its own camera samples, "
+                  f"set by 'aa' (now '{self.aa}') and 'aa_samples'.")
 
     def trace_rays(self, scene: mi.Scene, ray: mi.Ray3f, seed: int = 0):
         """Whitted radiance and alpha along arbitrary rays."""
@@ -342,14 +413,83 @@ class WhittedIntegrator(mi.SamplingIntegrator):
                 f"aa={self.aa}, ambient={list(self.ambient)}]")
 
 
+class CameraShader:
+    """``shade(positions, keys)``: radiance and alpha of the camera rays
+    through ``positions`` (pixel units in the crop window), traced in
+    launches of at most ``batch`` rays."""
+
+    def __init__(self, tracer, sensor: mi.Sensor, progress=None):
+        self.tracer = tracer
+        self.sensor = sensor
+        self.progress = progress
+        self.batch = tracer.camera_batch
+        #: What the progress display calls the samples being traced.
+        self.label = "camera samples"
+
+    def __call__(self, positions: mi.Point2f, keys: mi.UInt32):
+        total = dr.width(positions)
+        if total <= self.batch:
+            # The whole batch in one launch (every adaptive level after the
+            # first): no copies in and out.
+            radiance, alpha = self.tracer.trace_camera(self.sensor, positions, keys)
+            self._report(total, total)
+            return radiance, alpha
+        radiance, alpha = dr.empty(mi.Color3f, total), dr.empty(mi.Float, total)
+        for start in range(0, total, self.batch):
+            stop = min(start + self.batch, total)
+            part = index_range(start, stop)
+            part_radiance, part_alpha = self.tracer.trace_camera(
+                self.sensor, dr.gather(mi.Point2f, positions, part),
+                dr.gather(mi.UInt32, keys, part))
+            dr.scatter(radiance, part_radiance, part)
+            dr.scatter(alpha, part_alpha, part)
+            self._report(stop, total)
+        dr.eval(radiance, alpha)
+        return radiance, alpha
+
+    def _report(self, done: int, total: int) -> None:
+        if self.progress is not None:
+            self.progress(done, total, self.label)
+
+
 class _LastRender:
     """What the last render left (see the integrator's ``last_*``)."""
 
-    __slots__ = ("built_from", "tracer", "stats", "sample_map", "rays")
+    __slots__ = ("built_from", "tracer", "stats", "sample_map", "rays", "spp_noted")
 
     def __init__(self):
         self.built_from = self.tracer = self.sample_map = self.rays = None
         self.stats = {}
+        self.spp_noted = False
+
+
+def _sensor(scene: mi.Scene, sensor) -> mi.Sensor:
+    """The sensor ``mi.render`` names: a sensor, or an index into the scene's."""
+    if not isinstance(sensor, int):
+        return sensor
+    sensors = scene.sensors()
+    if not 0 <= sensor < len(sensors):
+        raise ParameterError(PLUGIN_NAME, "sensor",
+                             f"index {sensor} does not exist: the scene has {len(sensors)} "
+                             "sensor(s)")
+    return sensors[sensor]
+
+
+def _band_label(index: int, count: int) -> str:
+    return "camera samples" if count == 1 else f"camera samples, band {index + 1} of {count}"
+
+
+def _require_finite(radiance: mi.Color3f, alpha: mi.Float) -> None:
+    """Stop before a NaN or infinite pixel reaches the image. The scene's
+    emitters and placements are checked beforehand; what passes those and
+    still overflows (a radiance beyond float32's range) is named here."""
+    bad = dr.count(~(dr.isfinite(radiance.x) & dr.isfinite(radiance.y)
+                     & dr.isfinite(radiance.z) & dr.isfinite(alpha)))
+    if bad[0] if dr.is_array_v(bad) else bad:
+        raise ParameterError(
+            PLUGIN_NAME, "scene",
+            f"gives {int(bad[0] if dr.is_array_v(bad) else bad)} pixel(s) a NaN or infinite "
+            "value: a radiance, intensity or reflectance in it is too large for float32")
 
 
 def _require_supported_variant():
@@ -379,8 +519,9 @@ def _plain_intersect(scene_ref: SceneRef):
     return intersect
 
 
-def _prepare_film(film: mi.Film) -> int:
-    channels = film.prepare([])
+def _film_channels(film: mi.Film) -> int:
+    """Values per pixel of the film's storage: RGB or RGBA, and a weight."""
+    channels = film.base_channels_count() + 1
     if channels not in (4, 5):
         raise ParameterError(PLUGIN_NAME, "film",
                              f"must be an RGB(A) film such as 'hdrfilm' (got {film.class_name()})")
@@ -399,19 +540,21 @@ def _settle_sampler(sensor: mi.Sensor) -> None:
         sampler.seed(0, 1)
 
 
-def _image_block(film: mi.Film, radiance: mi.Color3f, alpha: mi.Float, channels: int):
-    """An image block holding the finished pixels (weight 1 each)."""
-    width, height = film.crop_size()
+def _image_block(film: mi.Film, band, radiance: mi.Color3f, alpha: mi.Float,
+                 channels: int):
+    """An image block holding the finished pixels of ``band`` (weight 1
+    each), placed on the film where the band lies."""
     values = [radiance.x, radiance.y, radiance.z]
     if channels == 5:
         values.append(alpha)
-    values.append(dr.ones(mi.Float, width * height))
-    data = dr.empty(mi.Float, width * height * channels)
-    base = dr.arange(mi.UInt32, width * height) * channels
+    values.append(dr.ones(mi.Float, band.pixels))
+    data = dr.empty(mi.Float, band.pixels * channels)
+    base = dr.arange(mi.UInt32, band.pixels) * channels
     for index, value in enumerate(values):
         dr.scatter(data, value, base + index)
-    tensor = mi.TensorXf(data, shape=(height, width, channels))
-    return mi.ImageBlock(tensor, film.crop_offset())
+    tensor = mi.TensorXf(data, shape=(band.rows, band.width, channels))
+    offset = film.crop_offset() + mi.ScalarPoint2i(0, band.first_row)
+    return mi.ImageBlock(tensor, offset)
 
 
 def _warn(message: str) -> None:

@@ -1,0 +1,140 @@
+"""How much memory a render takes, and how it is cut into bands of rows so
+that this stays bounded whatever the film's size and anti-aliasing.
+
+A render keeps, outside its kernels, a few numbers per camera sample that
+is still to be combined into its pixel (its position, key, radiance and
+alpha), a few per pixel of the band in flight (its sums, its sample count,
+the block handed to the film), and the film itself. The samples kept at
+once are bounded by cutting the film into bands of whole rows, each
+rendered and handed to the film (or to a file) before the next starts. The
+cut depends only on the film's size and the integrator's settings, never on
+the machine, so a render gives the same bits everywhere.
+
+Before anything is allocated the plan's peak is compared with the memory
+the machine has left (:func:`mitsuba_whitted.system.available_memory`);
+a render that cannot fit is refused with one sentence that names what to
+lower.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from ..errors import ParameterError
+from ..system import available_memory
+from .antialias import Band
+
+#: Most camera samples a band may keep outside the kernels at once.
+BAND_SAMPLES = 1 << 25
+#: Bytes kept per camera sample outside the kernels (position, key,
+#: radiance, alpha, the refinement's indices), with some margin.
+SAMPLE_BYTES = 40
+#: Bytes kept per pixel of a band (sums, sample count, the image block).
+PIXEL_BYTES = 64
+#: Bytes a launch takes per camera sample in flight, inside and around the
+#: kernel, for the stack tracer and for each ray of a wavefront generation.
+LAUNCH_SAMPLE_BYTES = 96
+#: Dr.Jit's arrays hold fewer than 2^32 entries.
+JIT_ENTRIES = 1 << 32
+#: Memory the process needs besides the render (Python, Mitsuba, Dr.Jit's
+#: kernels and caches), not counted in the plan.
+RESERVE = 256 << 20
+
+GIB = float(1 << 30)
+
+
+@dataclass(frozen=True)
+class RenderPlan:
+    """Bands of ``rows_per_band`` rows over a crop window ``width`` x
+    ``height``, and the peak memory each part of the render needs."""
+    width: int
+    height: int
+    rows_per_band: int
+    film_bytes: int
+    band_bytes: int
+    launch_bytes: int
+
+    @property
+    def peak_bytes(self) -> int:
+        return self.film_bytes + self.band_bytes + self.launch_bytes
+
+    @property
+    def band_count(self) -> int:
+        return -(-self.height // self.rows_per_band)
+
+    def bands(self):
+        """The bands, top to bottom."""
+        for first in range(0, self.height, self.rows_per_band):
+            yield Band(self.width, self.height, first,
+                       min(self.rows_per_band, self.height - first))
+
+
+@dataclass(frozen=True)
+class Demand:
+    """What a render asks for: ``samples_per_pixel`` is the most camera
+    samples a pixel may keep outside the kernels at once (1 where they are
+    reduced launch by launch), ``launch_samples`` the most camera samples or
+    rays one launch traces, ``film_entries`` the floats of a film that holds
+    the whole image (0 when the image goes to a file band by band)."""
+    width: int
+    height: int
+    samples_per_pixel: float
+    launch_samples: int
+    film_entries: int
+    #: The integrator's parameter that bounds ``samples_per_pixel``.
+    samples_parameter: str
+
+
+def plan_render(demand: Demand, plugin: str = "whitted") -> RenderPlan:
+    """The bands and peak memory of a render, or a :class:`ParameterError`
+    naming what to lower where it cannot fit in this machine's memory or in
+    Dr.Jit's arrays."""
+    _check_film_entries(demand, plugin)
+    row_samples = demand.samples_per_pixel * demand.width
+    rows = int(max(1, min(demand.height, BAND_SAMPLES // max(row_samples, 1))))
+    plan = RenderPlan(
+        demand.width, demand.height, rows,
+        film_bytes=4 * demand.film_entries,
+        band_bytes=int(rows * demand.width * (demand.samples_per_pixel * SAMPLE_BYTES
+                                              + PIXEL_BYTES)),
+        launch_bytes=demand.launch_samples * LAUNCH_SAMPLE_BYTES)
+    _check_band_entries(demand, rows, plugin)
+    _check_fits(plan, demand, available_memory(), plugin)
+    return plan
+
+
+def _check_film_entries(demand: Demand, plugin: str) -> None:
+    if demand.film_entries >= JIT_ENTRIES:
+        raise ParameterError(
+            plugin, "film",
+            f"of {demand.width} x {demand.height} pixels holds {demand.film_entries:,} values, "
+            f"more than a Dr.Jit array can (2^32); lower the film's 'width' and 'height'")
+
+
+def _check_band_entries(demand: Demand, rows: int, plugin: str) -> None:
+    samples = rows * demand.width * demand.samples_per_pixel
+    if samples * 3 >= JIT_ENTRIES:
+        raise ParameterError(
+            plugin, demand.samples_parameter,
+            f"allows {demand.samples_per_pixel:g} camera samples per pixel, and a single row "
+            f"of {demand.width} pixels would then hold more than a Dr.Jit array can (2^32 "
+            f"values); lower '{demand.samples_parameter}'")
+
+
+def _check_fits(plan: RenderPlan, demand: Demand, available: int | None, plugin: str) -> None:
+    """Refuse a plan whose peak passes what the machine has left."""
+    if available is None or plan.peak_bytes + RESERVE <= available:
+        return
+    parts = {"film": plan.film_bytes, "band": plan.band_bytes, "launch": plan.launch_bytes}
+    largest = max(parts, key=parts.get)
+    parameter, advice = {
+        "film": ("film", "lower the film's 'width' and 'height', or render to a file with "
+                         "'mitsuba-whitted render', which needs no film of the whole image"),
+        "band": (demand.samples_parameter, f"lower '{demand.samples_parameter}'"),
+        "launch": ("wavefront_size", "lower 'wavefront_size'"),
+    }[largest]
+    raise ParameterError(
+        plugin, parameter,
+        f"makes this {demand.width} x {demand.height} render need about "
+        f"{plan.peak_bytes / GIB:.1f} GiB of memory ({largest}: {parts[largest] / GIB:.1f} GiB), "
+        f"and {available / GIB:.1f} GiB are available; {advice}")

@@ -1,0 +1,102 @@
+"""Ray trees of any depth: traced without Python's recursion, pruned and
+capped as documented, and never left running forever.
+
+Oracle: a closed box of six emitting mirrors seen from inside. Every ray
+hits a wall, which adds its radiance Le and reflects the ray with weight r,
+so every pixel is exactly Le (1 + r + ... + r^(K-1)) = Le (1 - r^K) / (1 - r),
+where K is the number of rays of the chain: ``max_depth``, or fewer where
+the pruning (``min_throughput``) stops it."""
+
+import math
+
+import mitsuba as mi
+import numpy as np
+import pytest
+
+from conftest import assert_finite
+from mitsuba_whitted.integrators import whitted as whitted_module
+from mitsuba_whitted.integrators.shading import MAX_TREE_RAYS
+from scenes import camera, integrator, rgb, scene, sphere
+
+LE, R = 0.25, 0.99
+TRACERS = {"stack tracer": False, "wavefront tracer": True}
+
+#: A wall's placement: the axis it faces along and its side; its front
+#: (the rectangle's +z) faces the inside of the box.
+WALLS = [((0, 1, 0), 90), ((0, 1, 0), -90), ((1, 0, 0), -90), ((1, 0, 0), 90),
+         ((0, 1, 0), 0), ((0, 1, 0), 180)]
+
+
+def mirror_box(*inside, size=6):
+    T = mi.ScalarTransform4f
+    walls = {}
+    for index, (axis, angle) in enumerate(WALLS):
+        walls[f"wall_{index}"] = {
+            "type": "rectangle",
+            "to_world": T().rotate(axis, angle) @ T().translate([0, 0, -2]) @ T().scale(2.0),
+            "bsdf": {"type": "conductor", "specular_reflectance": rgb(R, R, R)},
+            "emitter": {"type": "area", "radiance": rgb(LE, LE, LE)},
+        }
+    return mi.load_dict(scene(*inside, sensor=camera(origin=(0.3, 0.2, 1.0), fov=70, size=size),
+                              **walls))
+
+
+def chain_radiance(rays: int) -> float:
+    return LE * (1 - R ** rays) / (1 - R)
+
+
+def render(loaded, capture: bool, **settings):
+    whitted = mi.load_dict(integrator(**settings))
+    whitted.capture_rays = capture
+    image = np.array(mi.render(loaded, integrator=whitted))
+    assert_finite(image)
+    return image, whitted.last_stats
+
+
+@pytest.mark.parametrize("capture", TRACERS.values(), ids=TRACERS.keys())
+def test_a_thousand_generations_are_traced_to_the_pruning(capture):
+    """max_depth 1000; the chain is pruned once r^k < 1e-4: K = 917 rays.
+    The wavefront tracer used to recurse once per generation and stop at
+    Python's recursion limit."""
+    image, stats = render(mirror_box(), capture, max_depth=1000, min_throughput=1e-4)
+    rays = 1 + math.floor(math.log(1e-4) / math.log(R))
+    assert rays == 917 and stats["generations"] == rays
+    np.testing.assert_allclose(image, chain_radiance(rays), rtol=2e-4)
+    assert stats["cut"] == 0
+
+
+@pytest.mark.parametrize("capture", TRACERS.values(), ids=TRACERS.keys())
+def test_unbounded_depth_without_pruning_stops_at_256_generations(capture):
+    image, stats = render(mirror_box(), capture, max_depth=-1, min_throughput=0)
+    assert stats["generations"] == 256
+    np.testing.assert_allclose(image, chain_radiance(256), rtol=1e-4)
+
+
+@pytest.mark.parametrize("capture", TRACERS.values(), ids=TRACERS.keys())
+def test_trees_that_double_every_generation_stop_at_the_ray_cap(capture, monkeypatch):
+    """A glass ball in the mirror box, nothing pruned: every hit on the ball
+    spawns two rays. The trees stop at MAX_TREE_RAYS rays per camera sample
+    (on average over a launch for the wavefront tracer), with a warning."""
+    warnings = []
+    monkeypatch.setattr(whitted_module, "_warn", warnings.append)
+    glass = sphere((0, 0, 0), 1.2, {"type": "dielectric", "int_ior": 1.5})
+    _, stats = render(mirror_box(glass, size=4), capture, max_depth=30, min_throughput=0)
+    # Rays are counted by kind when spawned; those cut were never traced.
+    traced = stats["camera"] + stats["reflection"] + stats["refraction"] - stats["cut"]
+    assert stats["cut"] > 0
+    assert traced <= MAX_TREE_RAYS * stats["camera"]
+    assert len(warnings) == 1 and "'max_depth'" in warnings[0]
+    assert f"{stats['cut']:,} rays were left untraced" in warnings[0]
+
+
+def test_a_sample_count_passed_to_mi_render_is_named_once(monkeypatch):
+    warnings = []
+    monkeypatch.setattr(whitted_module, "_warn", warnings.append)
+    loaded = mirror_box(size=4)
+    whitted = mi.load_dict(integrator(max_depth=3))
+    plain = np.array(mi.render(loaded, integrator=whitted))
+    for _ in range(2):
+        np.testing.assert_array_equal(np.array(mi.render(loaded, integrator=whitted, spp=16)),
+                                      plain)
+    assert len(warnings) == 1
+    assert "spp=16 is not used" in warnings[0] and "'aa'" in warnings[0]

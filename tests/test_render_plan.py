@@ -1,0 +1,144 @@
+"""Renders cut into bands, and the memory check before a render.
+
+Oracles: the same render in one piece (bands must not change a pixel),
+Mitsuba's own film (``render_rows`` must give what ``develop`` gives), and
+the sizes of the arrays a film needs (Dr.Jit's 2^32 entries)."""
+
+import mitsuba as mi
+import numpy as np
+import pytest
+
+from conftest import assert_finite
+from mitsuba_whitted.errors import ParameterError
+from mitsuba_whitted.integrators import render_plan
+from mitsuba_whitted.integrators.render_plan import Demand, plan_render
+from scenes import camera, diffuse, floor, glass_scene, integrator, point_light, rgb, scene, sphere
+
+GIB = 1 << 30
+
+
+def lit_scene(size=24, **film):
+    """Point-lit spheres over a floor, with silhouettes to refine."""
+    sensor = camera(origin=(0, 1, 5), size=size)
+    sensor["film"].update(film)
+    return mi.load_dict(scene(floor(), sphere((-0.6, 0, 0), 0.5, diffuse(0.8, 0.3, 0.2)),
+                              sphere((0.7, 0, 0.3), 0.6, {"type": "dielectric"}),
+                              point_light((1, 3, 3)), sensor=sensor))
+
+
+def render(loaded, **settings):
+    whitted = mi.load_dict(integrator(**settings))
+    image = np.array(mi.render(loaded, integrator=whitted))
+    return image, whitted
+
+
+@pytest.fixture
+def small_bands(monkeypatch):
+    """Bands of a few rows: about a hundred samples kept at once."""
+    monkeypatch.setattr(render_plan, "BAND_SAMPLES", 100)
+
+
+SETTINGS = [dict(aa="none"), dict(aa="grid", aa_samples=3),
+            dict(aa="contrast", aa_samples=4, aa_threshold=0.05),
+            dict(aa="adaptive", aa_max_depth=4, aa_threshold=0.05, aa_budget=16)]
+
+
+@pytest.mark.parametrize("settings", SETTINGS, ids=[s["aa"] for s in SETTINGS])
+def test_bands_give_the_image_of_one_piece(settings, monkeypatch):
+    whole, whitted = render(lit_scene(), **settings)
+    assert whitted.last_stats["bands"] == 1
+    monkeypatch.setattr(render_plan, "BAND_SAMPLES", 100)
+    banded, whitted = render(lit_scene(), **settings)
+    assert whitted.last_stats["bands"] > 3
+    assert_finite(banded)
+    np.testing.assert_array_equal(banded, whole)
+
+
+def test_bands_with_sampled_lights_are_deterministic(small_bands):
+    """Area lights take their shadow-ray points from the sample keys, which
+    stay unique and fixed when the film is cut into bands."""
+    loaded = mi.load_dict(glass_scene(size=20))
+    first, whitted = render(loaded, aa="adaptive", aa_max_depth=3, aa_threshold=0.05)
+    second, _ = render(loaded, aa="adaptive", aa_max_depth=3, aa_threshold=0.05)
+    assert whitted.last_stats["bands"] > 1
+    assert_finite(first)
+    np.testing.assert_array_equal(first, second)
+
+
+def test_a_crop_window_is_banded_in_place(monkeypatch):
+    crop = dict(crop_offset_x=3, crop_offset_y=5, crop_width=14, crop_height=11)
+    whole, _ = render(lit_scene(**crop), aa="grid", aa_samples=2)
+    monkeypatch.setattr(render_plan, "BAND_SAMPLES", 40)
+    banded, whitted = render(lit_scene(**crop), aa="grid", aa_samples=2)
+    assert whitted.last_stats["bands"] > 3
+    np.testing.assert_array_equal(banded, whole)
+
+
+@pytest.mark.parametrize("pixel_format", ["rgb", "rgba"])
+def test_rows_to_a_file_hold_what_the_film_develops(pixel_format, small_bands):
+    loaded = lit_scene(size=20, pixel_format=pixel_format)
+    whitted = mi.load_dict(integrator(aa="contrast", aa_samples=4, aa_threshold=0.05))
+    developed = np.array(mi.render(loaded, integrator=whitted))
+    image = np.full_like(developed, np.nan)
+
+    def take(first_row, rows):
+        assert rows.dtype == np.float32
+        image[first_row:first_row + len(rows)] = rows
+
+    whitted.render_rows(loaded, take)
+    assert whitted.last_stats["bands"] > 1
+    np.testing.assert_array_equal(image, developed)
+
+
+def test_a_film_too_large_for_memory_is_refused_before_it_is_allocated(monkeypatch):
+    monkeypatch.setattr(render_plan, "available_memory", lambda: 2 * GIB)
+    loaded = mi.load_dict(scene(sensor=camera(size=20000)))
+    whitted = mi.load_dict(integrator())
+    with pytest.raises(RuntimeError) as error:
+        mi.render(loaded, integrator=whitted)
+    # mi.render wraps what the integrator raised.
+    assert isinstance(error.value.__cause__, ParameterError)
+    message = str(error.value.__cause__)
+    assert message.startswith("whitted: parameter 'film'")
+    assert "20000 x 20000" in message and "'width' and 'height'" in message
+    assert "\n" not in message
+
+
+def test_a_film_past_dr_jit_s_array_limit_is_refused_whatever_the_memory(monkeypatch):
+    monkeypatch.setattr(render_plan, "available_memory", lambda: 1 << 50)
+    with pytest.raises(ParameterError, match="2\\^32"):
+        plan_render(Demand(40000, 40000, 1, 1 << 21, 40000 * 40000 * 9, "aa_budget"))
+
+
+def test_samples_that_do_not_fit_name_the_budget(monkeypatch):
+    monkeypatch.setattr(render_plan, "available_memory", lambda: 4 * GIB)
+    with pytest.raises(ParameterError) as error:
+        plan_render(Demand(4000, 3000, 100000, 1 << 21, 0, "aa_budget"))
+    assert str(error.value).startswith("whitted: parameter 'aa_budget'")
+
+
+def test_bands_hold_a_bounded_number_of_samples():
+    plan = plan_render(Demand(20000, 20000, 64, 1 << 21, 0, "aa_budget"))
+    assert plan.rows_per_band * 20000 * 64 <= render_plan.BAND_SAMPLES
+    assert sum(band.rows for band in plan.bands()) == 20000
+    assert plan.band_bytes < 2 * GIB
+
+
+def test_a_grid_asking_past_the_budget_is_refused_at_load():
+    with pytest.raises(RuntimeError, match="whitted: parameter 'aa_samples' asks for 490000 "
+                       "samples per pixel .*'aa_budget'"):
+        mi.load_dict(integrator(aa="grid", aa_samples=700))
+
+
+def test_a_grid_within_a_raised_budget_renders_with_samples_traced_in_launches():
+    """700 x 700 samples in each of 2 x 2 pixels, against the same pixels'
+    means worked out from a grid of 4 x 4 pixels that each take a quarter
+    of the samples (a 350 x 350 grid): a surface of one flat colour."""
+    loaded = mi.load_dict(scene(sphere((0, 0, 0), 2.0, {"type": "diffuse",
+                                                        "reflectance": rgb(0.5, 0.5, 0.5)}),
+                                point_light((0, 0, 5)), sensor=camera(size=2, fov=5)))
+    image, whitted = render(loaded, aa="grid", aa_samples=700, aa_budget=490000)
+    assert whitted.last_stats["aa_samples"] == 4 * 700 * 700
+    assert_finite(image)
+    centre, _ = render(loaded, aa="none")
+    np.testing.assert_allclose(image, centre, rtol=2e-3)
