@@ -16,7 +16,8 @@ import pytest
 
 from conftest import assert_finite
 from mitsuba_whitted.integrators.antialias import (AdaptiveSampler, Band, ContrastSampler,
-                                                   neighbourhood_contrast, render_grid)
+                                                   SampleBudget, neighbourhood_contrast,
+                                                   render_grid)
 from scenes import camera, integrator, rgb, scene
 
 WIDTH, HEIGHT = 6, 4
@@ -59,7 +60,7 @@ def reference(max_depth, threshold):
 
 @pytest.mark.parametrize("max_depth", [0, 1, 4, 7])
 def test_adaptive_matches_reference_recursion(max_depth):
-    sampler = AdaptiveSampler(0.25, max_depth, 1e9, warn=pytest.fail)
+    sampler = AdaptiveSampler(0.25, max_depth, SampleBudget(1e9), warn=pytest.fail)
     radiance, alpha, count = sampler.render(Band.whole(WIDTH, HEIGHT), edge_shader)
     expected, per_level = reference(max_depth, 0.25)
     assert list(count.per_level) == per_level
@@ -69,7 +70,7 @@ def test_adaptive_matches_reference_recursion(max_depth):
 
 
 def test_extra_samples_only_in_edge_pixels():
-    sampler = AdaptiveSampler(0.25, 5, 1e9, warn=pytest.fail)
+    sampler = AdaptiveSampler(0.25, 5, SampleBudget(1e9), warn=pytest.fail)
     _, _, count = sampler.render(Band.whole(WIDTH, HEIGHT), edge_shader)
     samples = np.array(count.per_pixel).reshape(HEIGHT, WIDTH)
     assert (samples[:, 2] > 4).all()
@@ -85,7 +86,7 @@ def noise_shader(positions, keys):
 
 def test_threshold_zero_on_noise_stops_at_the_budget():
     warnings = []
-    sampler = AdaptiveSampler(0.0, 16, 16.0, warn=warnings.append)
+    sampler = AdaptiveSampler(0.0, 16, SampleBudget(16.0), warn=warnings.append)
     radiance, _, count = sampler.render(Band.whole(32, 32), noise_shader)
     assert count.samples <= 16 * 32 * 32
     assert count.budget_hit_at is not None and count.budget_hit_at < 16
@@ -169,7 +170,7 @@ def test_contrast_refines_the_pixels_beside_an_edge_exactly():
     """The edge lies between the centres of columns 1 and 2, so only those
     are refined; of 64 Hammersley points in column 2, those with x below
     1/3 are white: (i + 0.5) / 64 < 1/3 for i = 0 ... 20."""
-    sampler = ContrastSampler(0.1, 8, 1e9, warn=pytest.fail)
+    sampler = ContrastSampler(0.1, 8, SampleBudget(1e9), warn=pytest.fail)
     radiance, alpha, count = sampler.render(Band.whole(WIDTH, HEIGHT), edge_shader)
     image = np.array(radiance.x).reshape(HEIGHT, WIDTH)
     samples = np.array(count.per_pixel).reshape(HEIGHT, WIDTH)
@@ -218,7 +219,8 @@ def edge_errors(render, normal, offset, size=12):
 
 
 def render_contrast_8(width, height, shader):
-    return ContrastSampler(0.1, 8, 1e9, warn=pytest.fail).render(Band.whole(width, height), shader)
+    sampler = ContrastSampler(0.1, 8, SampleBudget(1e9), warn=pytest.fail)
+    return sampler.render(Band.whole(width, height), shader)
 
 
 def render_grid_8(width, height, shader):
@@ -252,15 +254,16 @@ def test_contrast_on_sloped_edges_is_as_accurate_as_a_grid():
 
 def test_contrast_budget_takes_fewer_points_with_a_warning():
     warnings = []
-    sampler = ContrastSampler(0.0, 16, 8.0, warn=warnings.append)
+    sampler = ContrastSampler(0.0, 16, SampleBudget(8.0), warn=warnings.append)
     radiance, _, count = sampler.render(Band.whole(32, 32), noise_shader)
     assert count.samples <= 8 * 32 * 32
     assert len(warnings) == 1 and "aa_budget" in warnings[0]
     assert np.isfinite(np.array(radiance)).all()
 
 
-@pytest.mark.parametrize("sampler", [AdaptiveSampler(0.0, 3, 400.0, warn=pytest.fail),
-                                     ContrastSampler(0.0, 4, 64.0, warn=pytest.fail)],
+@pytest.mark.parametrize("sampler", [
+    AdaptiveSampler(0.0, 3, SampleBudget(400.0), warn=pytest.fail),
+    ContrastSampler(0.0, 4, SampleBudget(64.0), warn=pytest.fail)],
                          ids=["adaptive", "contrast"])
 def test_a_channel_the_shader_broadcasts_is_refined_like_the_others(sampler):
     """noise_shader's blue channel is one value for all samples (width 1):

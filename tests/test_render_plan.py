@@ -11,6 +11,7 @@ import pytest
 from conftest import assert_finite
 from mitsuba_whitted.errors import ParameterError
 from mitsuba_whitted.integrators import render_plan
+from mitsuba_whitted.integrators import whitted as whitted_module
 from mitsuba_whitted.integrators.render_plan import Demand, plan_render
 from scenes import camera, diffuse, floor, glass_scene, integrator, point_light, rgb, scene, sphere
 
@@ -34,20 +35,23 @@ def render(loaded, **settings):
 
 @pytest.fixture
 def small_bands(monkeypatch):
-    """Bands of a few rows: about a hundred samples kept at once."""
-    monkeypatch.setattr(render_plan, "BAND_SAMPLES", 100)
+    """Bands of a few rows of a 20 x 20 film."""
+    monkeypatch.setattr(render_plan, "BAND_SAMPLES", 1500)
 
 
-SETTINGS = [dict(aa="none"), dict(aa="grid", aa_samples=3),
-            dict(aa="contrast", aa_samples=4, aa_threshold=0.05),
-            dict(aa="adaptive", aa_max_depth=4, aa_threshold=0.05, aa_budget=16)]
+#: Settings, and a number of samples per band that cuts a 24 x 24 film
+#: into bands of a few rows (bands are sized for TYPICAL_SAMPLES per pixel
+#: where refinement may add samples) without stopping the refinement.
+SETTINGS = [(dict(aa="none"), 100), (dict(aa="grid", aa_samples=3), 100),
+            (dict(aa="contrast", aa_samples=4, aa_threshold=0.05), 2000),
+            (dict(aa="adaptive", aa_max_depth=4, aa_threshold=0.05, aa_budget=16), 2000)]
 
 
-@pytest.mark.parametrize("settings", SETTINGS, ids=[s["aa"] for s in SETTINGS])
-def test_bands_give_the_image_of_one_piece(settings, monkeypatch):
+@pytest.mark.parametrize("settings, band_samples", SETTINGS, ids=[s["aa"] for s, _ in SETTINGS])
+def test_bands_give_the_image_of_one_piece(settings, band_samples, monkeypatch):
     whole, whitted = render(lit_scene(), **settings)
     assert whitted.last_stats["bands"] == 1
-    monkeypatch.setattr(render_plan, "BAND_SAMPLES", 100)
+    monkeypatch.setattr(render_plan, "BAND_SAMPLES", band_samples)
     banded, whitted = render(lit_scene(), **settings)
     assert whitted.last_stats["bands"] > 3
     assert_finite(banded)
@@ -90,6 +94,18 @@ def test_rows_to_a_file_hold_what_the_film_develops(pixel_format, small_bands):
     np.testing.assert_array_equal(image, developed)
 
 
+def test_a_band_stops_refining_where_it_would_keep_too_many_samples(monkeypatch):
+    warnings = []
+    monkeypatch.setattr(whitted_module, "_warn", warnings.append)
+    monkeypatch.setattr(render_plan, "BAND_SAMPLES", 3000)
+    image, whitted = render(lit_scene(), aa="adaptive", aa_max_depth=8, aa_threshold=0.0,
+                            aa_budget=400)
+    assert_finite(image)
+    bands = whitted.last_stats["bands"]
+    assert bands > 1 and whitted.last_stats["aa_samples"] <= 3000 * bands
+    assert warnings and all("keeps in memory at once" in warning for warning in warnings)
+
+
 def test_a_film_too_large_for_memory_is_refused_before_it_is_allocated(monkeypatch):
     monkeypatch.setattr(render_plan, "available_memory", lambda: 2 * GIB)
     loaded = mi.load_dict(scene(sensor=camera(size=20000)))
@@ -107,21 +123,22 @@ def test_a_film_too_large_for_memory_is_refused_before_it_is_allocated(monkeypat
 def test_a_film_past_dr_jit_s_array_limit_is_refused_whatever_the_memory(monkeypatch):
     monkeypatch.setattr(render_plan, "available_memory", lambda: 1 << 50)
     with pytest.raises(ParameterError, match="2\\^32"):
-        plan_render(Demand(40000, 40000, 1, 1 << 21, 40000 * 40000 * 9, "aa_budget"))
+        plan_render(Demand(40000, 40000, 1, 1 << 21, 40000 * 40000 * 9))
 
 
 def test_samples_that_do_not_fit_name_the_budget(monkeypatch):
-    monkeypatch.setattr(render_plan, "available_memory", lambda: 4 * GIB)
+    monkeypatch.setattr(render_plan, "available_memory", lambda: GIB)
     with pytest.raises(ParameterError) as error:
-        plan_render(Demand(4000, 3000, 100000, 1 << 21, 0, "aa_budget"))
+        plan_render(Demand(4000, 3000, 100000, 1 << 16, 0))
     assert str(error.value).startswith("whitted: parameter 'aa_budget'")
 
 
-def test_bands_hold_a_bounded_number_of_samples():
-    plan = plan_render(Demand(20000, 20000, 64, 1 << 21, 0, "aa_budget"))
-    assert plan.rows_per_band * 20000 * 64 <= render_plan.BAND_SAMPLES
+def test_bands_are_sized_for_typical_refinement_and_cover_the_film():
+    plan = plan_render(Demand(20000, 20000, 64, 1 << 21, 0))
+    assert plan.rows_per_band == render_plan.BAND_SAMPLES // (render_plan.TYPICAL_SAMPLES * 20000)
     assert sum(band.rows for band in plan.bands()) == 20000
     assert plan.band_bytes < 2 * GIB
+    assert plan_render(Demand(600, 600, 64, 1 << 21, 0)).band_count == 1
 
 
 def test_a_grid_asking_past_the_budget_is_refused_at_load():

@@ -101,6 +101,27 @@ class SampleCount:
         self.per_pixel = band.per_pixel
 
 
+@dataclass(frozen=True)
+class SampleBudget:
+    """Most camera samples a band may take: ``per_pixel`` on average over
+    it (``aa_budget``), and at most ``band_limit`` in all (what a band may
+    keep in memory at once)."""
+    per_pixel: float
+    band_limit: int | None = None
+
+    def samples(self, pixels: int) -> int:
+        limit = int(self.per_pixel * pixels)
+        return limit if self.band_limit is None else min(limit, self.band_limit)
+
+    def passed(self, pixels: int) -> str:
+        """What a refinement would pass, and what to change."""
+        if self.band_limit is not None and self.band_limit < self.per_pixel * pixels:
+            return (f"the {self.band_limit:,} samples a band of the film keeps in memory at "
+                    "once; raise 'aa_threshold'")
+        return (f"the budget of {self.per_pixel:g} samples per pixel ('aa_budget'); raise "
+                "'aa_budget' or 'aa_threshold'")
+
+
 def _traced(shade: ShadeFn, positions: mi.Point2f, keys: mi.UInt32) -> tuple:
     """``shade``'s radiance and alpha, every component full width: the
     samplers scatter refined values into them, and a scatter into a
@@ -211,11 +232,11 @@ def _quadrants_to_split(colors: mi.Color3f, threshold: float) -> mi.UInt32:
 class AdaptiveSampler:
     """The report's recursive 4-way subdivision, one level per wavefront."""
 
-    def __init__(self, threshold: float, max_depth: int, budget_spp: float,
+    def __init__(self, threshold: float, max_depth: int, budget: SampleBudget,
                  warn: Callable[[str], None]):
         self.threshold = threshold
         self.max_depth = max_depth
-        self.budget_spp = budget_spp
+        self.budget = budget
         self.warn = warn
 
     def render(self, band: Band, shade: ShadeFn, first_refined_key: int | None = None):
@@ -224,7 +245,6 @@ class AdaptiveSampler:
         (default: after the first level of the whole crop window)."""
         if first_refined_key is None:
             first_refined_key = 4 * band.width * band.height
-        budget = int(self.budget_spp * band.pixels)
         centres, _ = _grid_positions(band.width, band.first_pixel, band.pixels, 1)
         origins = mi.Point2f(centres - 0.5)
         # Every pixel starts with its four quadrant samples.
@@ -241,7 +261,7 @@ class AdaptiveSampler:
             radiance, alpha = _traced(shade, positions, keys)
             count.samples += dr.width(positions)
             count.per_level += (dr.width(positions),)
-            cells = self._cells_to_split(radiance, len(levels), count, budget)
+            cells = self._cells_to_split(radiance, len(levels), count, band.pixels)
             levels.append((radiance, alpha, cells))
             if cells is None:
                 break
@@ -257,7 +277,7 @@ class AdaptiveSampler:
         count.levels = len(levels) - 1
         return self._combine(levels) + (count,)
 
-    def _cells_to_split(self, radiance, level: int, count: SampleCount, budget: int):
+    def _cells_to_split(self, radiance, level: int, count: SampleCount, pixels: int):
         """Indices of the quadrants to refine, or ``None`` when this level
         is the last (one wait for the device: the compaction's size)."""
         if level >= self.max_depth:
@@ -266,12 +286,10 @@ class AdaptiveSampler:
         wanted = 4 * dr.width(cells)
         if wanted == 0:
             return None
-        if count.samples + wanted > budget:
+        if count.samples + wanted > self.budget.samples(pixels):
             count.budget_hit_at = level + 1
-            self.warn(
-                f"whitted: adaptive anti-aliasing stopped before level {level + 1}: its "
-                f"{wanted} samples would pass the budget of {self.budget_spp:g} samples per "
-                "pixel ('aa_budget'); raise 'aa_budget' or 'aa_threshold'.")
+            self.warn(f"whitted: adaptive anti-aliasing stopped before level {level + 1}: its "
+                      f"{wanted} samples would pass {self.budget.passed(pixels)}.")
             return None
         return cells
 
@@ -314,11 +332,11 @@ class ContrastSampler:
     ``samples_per_side^2`` Hammersley points in every pixel whose
     neighbourhood contrast passes ``threshold``."""
 
-    def __init__(self, threshold: float, samples_per_side: int, budget_spp: float,
+    def __init__(self, threshold: float, samples_per_side: int, budget: SampleBudget,
                  warn: Callable[[str], None]):
         self.threshold = threshold
         self.samples = samples_per_side * samples_per_side
-        self.budget_spp = budget_spp
+        self.budget = budget
         self.warn = warn
 
     def render(self, band: Band, shade: ShadeFn, first_refined_key: int | None = None):
@@ -368,15 +386,13 @@ class ContrastSampler:
     def _samples_within_budget(self, refined: int, pixels: int) -> int:
         """Points per refined pixel: as asked, or fewer (with a warning)
         where that would pass the budget of samples per pixel."""
-        allowed = int((self.budget_spp * pixels - pixels) // refined)
+        allowed = (self.budget.samples(pixels) - pixels) // refined
         if allowed >= self.samples:
             return self.samples
         samples = max(allowed, 1)
-        self.warn(
-            f"whitted: contrast anti-aliasing refines {refined} pixels with {samples} "
-            f"samples each instead of {self.samples}: more would pass the budget of "
-            f"{self.budget_spp:g} samples per pixel ('aa_budget'); raise 'aa_budget' or "
-            "'aa_threshold'.")
+        self.warn(f"whitted: contrast anti-aliasing refines {refined} pixels with {samples} "
+                  f"samples each instead of {self.samples}: more would pass "
+                  f"{self.budget.passed(pixels)}.")
         return samples
 
 

@@ -6,9 +6,13 @@ is still to be combined into its pixel (its position, key, radiance and
 alpha), a few per pixel of the band in flight (its sums, its sample count,
 the block handed to the film), and the film itself. The samples kept at
 once are bounded by cutting the film into bands of whole rows, each
-rendered and handed to the film (or to a file) before the next starts. The
-cut depends only on the film's size and the integrator's settings, never on
-the machine, so a render gives the same bits everywhere.
+rendered and handed to the film (or to a file) before the next starts, and
+by letting no band keep more than ``BAND_SAMPLES`` samples: the adaptive and
+contrast refinements stop there as they stop at ``aa_budget``. Bands are
+sized for ``TYPICAL_SAMPLES`` per pixel (most pixels of most scenes take
+the four of the first adaptive level), so a film of usual size is one band.
+The cut depends only on the film's size and the integrator's settings,
+never on the machine, so a render gives the same bits everywhere.
 
 Before anything is allocated the plan's peak is compared with the memory
 the machine has left (:func:`mitsuba_whitted.system.available_memory`);
@@ -26,6 +30,9 @@ from .antialias import Band
 
 #: Most camera samples a band may keep outside the kernels at once.
 BAND_SAMPLES = 1 << 25
+#: Camera samples per pixel that bands are sized for, where a pixel may
+#: take more (adaptive and contrast refinement).
+TYPICAL_SAMPLES = 16
 #: Bytes kept per camera sample outside the kernels (position, key,
 #: radiance, alpha, the refinement's indices), with some margin.
 SAMPLE_BYTES = 40
@@ -81,44 +88,43 @@ class Demand:
     samples_per_pixel: float
     launch_samples: int
     film_entries: int
-    #: The integrator's parameter that bounds ``samples_per_pixel``.
-    samples_parameter: str
+    #: The integrator's parameters that bound ``samples_per_pixel`` and
+    #: ``launch_samples``.
+    samples_parameter: str = "aa_budget"
+    launch_parameter: str = "wavefront_size"
 
 
 def plan_render(demand: Demand, plugin: str = "whitted") -> RenderPlan:
     """The bands and peak memory of a render, or a :class:`ParameterError`
     naming what to lower where it cannot fit in this machine's memory or in
     Dr.Jit's arrays."""
-    _check_film_entries(demand, plugin)
-    row_samples = demand.samples_per_pixel * demand.width
-    rows = int(max(1, min(demand.height, BAND_SAMPLES // max(row_samples, 1))))
+    _check_entries(demand.film_entries, "film", demand, plugin)
+    _check_entries(3 * demand.launch_samples, demand.launch_parameter, demand, plugin)
+    sized_for = min(demand.samples_per_pixel, TYPICAL_SAMPLES) * demand.width
+    rows = int(max(1, min(demand.height, BAND_SAMPLES // max(sized_for, 1))))
+    kept = min(rows * demand.width * demand.samples_per_pixel, BAND_SAMPLES)
     plan = RenderPlan(
         demand.width, demand.height, rows,
         film_bytes=4 * demand.film_entries,
-        band_bytes=int(rows * demand.width * (demand.samples_per_pixel * SAMPLE_BYTES
-                                              + PIXEL_BYTES)),
+        band_bytes=int(kept * SAMPLE_BYTES + rows * demand.width * PIXEL_BYTES),
         launch_bytes=demand.launch_samples * LAUNCH_SAMPLE_BYTES)
-    _check_band_entries(demand, rows, plugin)
     _check_fits(plan, demand, available_memory(), plugin)
     return plan
 
 
-def _check_film_entries(demand: Demand, plugin: str) -> None:
-    if demand.film_entries >= JIT_ENTRIES:
+def _check_entries(entries: int, parameter: str, demand: Demand, plugin: str) -> None:
+    """Refuse an array past Dr.Jit's 2^32 entries, naming what sets its size."""
+    if entries < JIT_ENTRIES:
+        return
+    if parameter == "film":
         raise ParameterError(
             plugin, "film",
-            f"of {demand.width} x {demand.height} pixels holds {demand.film_entries:,} values, "
-            f"more than a Dr.Jit array can (2^32); lower the film's 'width' and 'height'")
-
-
-def _check_band_entries(demand: Demand, rows: int, plugin: str) -> None:
-    samples = rows * demand.width * demand.samples_per_pixel
-    if samples * 3 >= JIT_ENTRIES:
-        raise ParameterError(
-            plugin, demand.samples_parameter,
-            f"allows {demand.samples_per_pixel:g} camera samples per pixel, and a single row "
-            f"of {demand.width} pixels would then hold more than a Dr.Jit array can (2^32 "
-            f"values); lower '{demand.samples_parameter}'")
+            f"of {demand.width} x {demand.height} pixels holds {entries:,} values, more than "
+            "a Dr.Jit array can (2^32); lower the film's 'width' and 'height'")
+    raise ParameterError(
+        plugin, parameter,
+        f"makes one launch hold {entries:,} values, more than a Dr.Jit array can (2^32); "
+        f"lower '{parameter}'")
 
 
 def _check_fits(plan: RenderPlan, demand: Demand, available: int | None, plugin: str) -> None:
@@ -131,7 +137,7 @@ def _check_fits(plan: RenderPlan, demand: Demand, available: int | None, plugin:
         "film": ("film", "lower the film's 'width' and 'height', or render to a file with "
                          "'mitsuba-whitted render', which needs no film of the whole image"),
         "band": (demand.samples_parameter, f"lower '{demand.samples_parameter}'"),
-        "launch": ("wavefront_size", "lower 'wavefront_size'"),
+        "launch": (demand.launch_parameter, f"lower '{demand.launch_parameter}'"),
     }[largest]
     raise ParameterError(
         plugin, parameter,

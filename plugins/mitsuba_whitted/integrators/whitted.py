@@ -6,7 +6,7 @@ import numpy as np
 
 from ..jit import index_range
 from ..errors import ParameterError, VariantError, check, check_choice
-from . import antialias
+from . import antialias, render_plan
 from .render_plan import Demand, RenderPlan, plan_render
 from .scene_checks import check_emitters, check_placements
 from .analytic import AnalyticRefiner
@@ -334,10 +334,10 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         """What a render of ``film`` asks of memory (:mod:`.render_plan`)."""
         width, height = film.crop_size()
         kept = self.aa_budget if self.aa in ("adaptive", "contrast") else 1
-        launch = tracer.launch_rays
-        if self.aa == "grid":
-            launch = max(launch, self.aa_samples * self.aa_samples)
-        return Demand(width, height, kept, launch, film_entries, "aa_budget")
+        launch, parameter = tracer.launch_rays, "wavefront_size"
+        if self.aa == "grid" and self.aa_samples ** 2 > launch:
+            launch, parameter = self.aa_samples ** 2, "aa_samples"
+        return Demand(width, height, kept, launch, film_entries, launch_parameter=parameter)
 
     def _record(self, tracer, count: antialias.SampleCount, plan: RenderPlan) -> None:
         """Keep what the last render did for ``last_stats`` and friends."""
@@ -358,13 +358,14 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     def _sample_pixels(self, band, shade, refined_before: int):
         """Radiance, alpha and sample count of ``band``; its refinement
         samples' keys follow the ``refined_before`` of the bands above."""
+        budget = antialias.SampleBudget(self.aa_budget, render_plan.BAND_SAMPLES)
         if self.aa == "adaptive":
-            sampler = antialias.AdaptiveSampler(self.aa_threshold, self.aa_max_depth,
-                                                self.aa_budget, _warn)
+            sampler = antialias.AdaptiveSampler(self.aa_threshold, self.aa_max_depth, budget,
+                                                _warn)
             return sampler.render(band, shade, 4 * band.width * band.height + refined_before)
         if self.aa == "contrast":
-            sampler = antialias.ContrastSampler(self.aa_threshold, self.aa_samples,
-                                                self.aa_budget, _warn)
+            sampler = antialias.ContrastSampler(self.aa_threshold, self.aa_samples, budget,
+                                                _warn)
             return sampler.render(band, shade, band.width * band.height + refined_before)
         n = self.aa_samples if self.aa == "grid" else 1
         return antialias.render_grid(band, n, shade)
