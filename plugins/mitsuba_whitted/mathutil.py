@@ -119,3 +119,16 @@ def hammersley(count: int) -> np.ndarray:
     x = (index + 0.5) / count
     y = (reversed_index + 0.5) / float(1 << bits)
     return np.stack([x, y], axis=1)
+
+
+def radical_inverse(count: int, base: int) -> np.ndarray:
+    """The base-``base`` radical inverse of ``0 ... count - 1`` (the index's
+    digits mirrored about the point), float64: the van der Corput points
+    that the Halton and Hammersley sets take one base per dimension."""
+    index = np.arange(count, dtype=np.int64)
+    result, scale = np.zeros(count), 1.0 / base
+    while index.any():
+        result += (index % base) * scale
+        index //= base
+        scale /= base
+    return result

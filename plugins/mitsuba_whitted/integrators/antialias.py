@@ -37,6 +37,7 @@ import mitsuba as mi
 
 from ..jit import full_width, index_range, opaque_float, read_runs, sum_blocks
 from ..mathutil import hammersley
+from . import lens as lens_points
 
 #: Offsets (dy, dx) of a pixel's 8 neighbours.
 NEIGHBOURS = tuple((dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx) != (0, 0))
@@ -122,26 +123,35 @@ class SampleBudget:
                 "'aa_budget' or 'aa_threshold'")
 
 
-def _traced(shade: ShadeFn, positions: mi.Point2f, keys: mi.UInt32) -> tuple:
+def _traced(shade: ShadeFn, positions: mi.Point2f, keys: mi.UInt32, lens=None) -> tuple:
     """``shade``'s radiance and alpha, every component full width: the
     samplers scatter refined values into them, and a scatter into a
     component broadcast from width 1 (a shader returning ``Color3f(r, g,
-    0.5)``) writes past its one entry and corrupts the heap."""
-    radiance, alpha = shade(positions, keys)
+    0.5)``) writes past its one entry and corrupts the heap. ``lens``: the
+    samples' lens points, for cameras with an aperture."""
+    radiance, alpha = shade(positions, keys) if lens is None else shade(positions, keys, lens)
     return full_width(radiance), full_width(alpha)
 
 
-def _grid_positions(width: int, first_pixel: int, pixels: int, n: int):
+def _grid_positions(width: int, first_pixel: int, pixels: int, n: int, lens: bool = False):
     """Centres of an n x n grid in each of ``pixels`` pixels from
     ``first_pixel`` on (row-major in a crop window ``width`` wide),
-    pixel-major, and their keys: each sample's index in that order over
-    the whole crop window."""
+    pixel-major; their keys (each sample's index in that order over the
+    whole crop window); and, if ``lens``, their lens points (the strata of
+    an n x n grid over the lens, permuted per pixel; a single sample takes
+    a hashed point)."""
     index = dr.arange(mi.UInt32, pixels * n * n)
     pixel = index // (n * n) + dr.opaque(mi.UInt32, first_pixel)
     sub = index % (n * n)
     x = mi.Float(pixel % width) + (mi.Float(sub % n) + 0.5) / n
     y = mi.Float(pixel // width) + (mi.Float(sub // n) + 0.5) / n
-    return mi.Point2f(x, y), index + dr.opaque(mi.UInt32, first_pixel * n * n)
+    keys = index + dr.opaque(mi.UInt32, first_pixel * n * n)
+    if not lens:
+        return mi.Point2f(x, y), keys, None
+    seed = lens_points.pixel_seed(pixel)
+    points = (lens_points.hashed_lens(seed) if n == 1
+              else lens_points.grid_lens(sub, n, seed))
+    return mi.Point2f(x, y), keys, points
 
 
 def _block_means(radiance: mi.Color3f, alpha: mi.Float, block: int) -> tuple:
@@ -150,30 +160,32 @@ def _block_means(radiance: mi.Color3f, alpha: mi.Float, block: int) -> tuple:
     return sum_blocks(radiance, block) * scale, sum_blocks(alpha, block) * scale
 
 
-def render_grid(band: Band, n: int, shade: ShadeFn):
+def render_grid(band: Band, n: int, shade: ShadeFn, lens: bool = False):
     """Box-filtered pixels of ``band`` from n x n stratified samples (n = 1:
-    centres). The samples are traced a launch of whole pixels at a time and
-    only their means kept, so memory follows the pixels, not the samples."""
+    centres), stratified on the lens too if ``lens``. The samples are
+    traced a launch of whole pixels at a time and only their means kept,
+    so memory follows the pixels, not the samples."""
     per_pixel = n * n
     launch = max(1, getattr(shade, "batch", band.pixels * per_pixel) // per_pixel)
     count = SampleCount(band.pixels * per_pixel, 0, (band.pixels * per_pixel,))
     if band.pixels <= launch:
-        return _grid_means(band, 0, band.pixels, n, shade) + (count,)
+        return _grid_means(band, 0, band.pixels, n, shade, lens) + (count,)
     radiance, alpha = dr.empty(mi.Color3f, band.pixels), dr.empty(mi.Float, band.pixels)
     for start in range(0, band.pixels, launch):
         stop = min(start + launch, band.pixels)
-        part_radiance, part_alpha = _grid_means(band, start, stop - start, n, shade)
+        part_radiance, part_alpha = _grid_means(band, start, stop - start, n, shade, lens)
         target = index_range(start, stop)
         dr.scatter(radiance, part_radiance, target)
         dr.scatter(alpha, part_alpha, target)
     return radiance, alpha, count
 
 
-def _grid_means(band: Band, start: int, pixels: int, n: int, shade: ShadeFn) -> tuple:
+def _grid_means(band: Band, start: int, pixels: int, n: int, shade: ShadeFn,
+                lens: bool) -> tuple:
     """Mean radiance and alpha of ``pixels`` pixels of ``band`` from its
     ``start``-th on."""
-    positions, keys = _grid_positions(band.width, band.first_pixel + start, pixels, n)
-    radiance, alpha = _traced(shade, positions, keys)
+    radiance, alpha = _traced(shade, *_grid_positions(band.width, band.first_pixel + start,
+                                                      pixels, n, lens))
     if n == 1:
         return radiance, alpha
     return _block_means(radiance, alpha, n * n)
@@ -189,6 +201,25 @@ def _quadrant_positions(origins: mi.Point2f, size: float) -> mi.Point2f:
     qx = mi.Float(quadrant % 2) * 0.5 + 0.25
     qy = mi.Float(quadrant // 2) * 0.5 + 0.25
     return mi.Point2f(corner + mi.Vector2f(qx, qy) * opaque_float(size))
+
+
+def _quadrant_lens_cells(origins: mi.Point2f, lens_origins: mi.Point2f,
+                         size: float) -> mi.Point2f:
+    """The lower corner, on the lens, of each quadrant of each cell (cells
+    at film ``origins`` covering lens squares at ``lens_origins``, both of
+    side ``size``): the cell's lens square split in four, the quarters
+    handed to the quadrants in an order permuted per cell."""
+    index = dr.arange(mi.UInt32, 4 * dr.width(origins))
+    cell, quadrant = index // 4, index % 4
+    # Seeded by the cell's centre, which no cell of another level shares: a
+    # cell's first quadrant has the cell's origin, and pairings seeded by
+    # origins would repeat down that chain and pin its lens points to the
+    # lens's edges.
+    seed = lens_points.position_seed(dr.gather(mi.Point2f, origins, cell)
+                                      + opaque_float(size / 2))
+    column, row = lens_points.paired_strata(quadrant % 2, quadrant // 2, 2, seed)
+    offset = mi.Vector2f(mi.Float(column), mi.Float(row)) * opaque_float(size / 2)
+    return mi.Point2f(dr.gather(mi.Point2f, lens_origins, cell) + offset)
 
 
 def _split_codes(colors: mi.Color3f, threshold: float) -> mi.UInt32:
@@ -233,11 +264,16 @@ class AdaptiveSampler:
     """The report's recursive 4-way subdivision, one level per wavefront."""
 
     def __init__(self, threshold: float, max_depth: int, budget: SampleBudget,
-                 warn: Callable[[str], None]):
+                 warn: Callable[[str], None], lens: bool = False):
         self.threshold = threshold
         self.max_depth = max_depth
         self.budget = budget
         self.warn = warn
+        #: Whether samples take lens points: each cell covers a square of
+        #: the lens as it covers one of its pixel, its quadrants take that
+        #: square's four quarters (paired as ``lens.paired_strata`` pairs
+        #: a 2 x 2 grid), and a sample looks from a point of its quarter.
+        self.lens = lens
 
     def render(self, band: Band, shade: ShadeFn, first_refined_key: int | None = None):
         """Pixels of ``band``. Its first level's keys are four per pixel of
@@ -245,8 +281,9 @@ class AdaptiveSampler:
         (default: after the first level of the whole crop window)."""
         if first_refined_key is None:
             first_refined_key = 4 * band.width * band.height
-        centres, _ = _grid_positions(band.width, band.first_pixel, band.pixels, 1)
+        centres, _, _ = _grid_positions(band.width, band.first_pixel, band.pixels, 1)
         origins = mi.Point2f(centres - 0.5)
+        lens_origins = dr.zeros(mi.Point2f, band.pixels) if self.lens else None
         # Every pixel starts with its four quadrant samples.
         levels, count = [], SampleCount(per_pixel=dr.full(mi.UInt32, 4, band.pixels))
         size = 1.0
@@ -258,7 +295,12 @@ class AdaptiveSampler:
             else:
                 first = 4 * band.first_pixel
             keys = index_range(first, first + dr.width(positions))
-            radiance, alpha = _traced(shade, positions, keys)
+            lens = None
+            if self.lens:
+                lens_origins = _quadrant_lens_cells(origins, lens_origins, size)
+                spread = lens_points.jitter(lens_points.position_seed(positions), mi.UInt32(0))
+                lens = mi.Point2f(lens_origins + spread * opaque_float(size / 2))
+            radiance, alpha = _traced(shade, positions, keys, lens)
             count.samples += dr.width(positions)
             count.per_level += (dr.width(positions),)
             cells = self._cells_to_split(radiance, len(levels), count, band.pixels)
@@ -273,6 +315,8 @@ class AdaptiveSampler:
             dr.scatter_reduce(dr.ReduceOp.Add, count.per_pixel, mi.UInt32(4), pixel,
                               mode=dr.ReduceMode.Direct)
             origins = mi.Point2f(centres - opaque_float(size / 4))
+            if self.lens:
+                lens_origins = dr.gather(mi.Point2f, lens_origins, cells)
             size *= 0.5
         count.levels = len(levels) - 1
         return self._combine(levels) + (count,)
@@ -333,11 +377,15 @@ class ContrastSampler:
     neighbourhood contrast passes ``threshold``."""
 
     def __init__(self, threshold: float, samples_per_side: int, budget: SampleBudget,
-                 warn: Callable[[str], None]):
+                 warn: Callable[[str], None], lens: bool = False):
         self.threshold = threshold
         self.samples = samples_per_side * samples_per_side
         self.budget = budget
         self.warn = warn
+        #: Whether samples take lens points: a pixel's centre sample looks
+        #: from a point hashed from the pixel (so blur shows as contrast),
+        #: its refinement's points from their next Halton coordinates.
+        self.lens = lens
 
     def render(self, band: Band, shade: ShadeFn, first_refined_key: int | None = None):
         """Pixels of ``band``. Centre samples are keyed by their pixel in the
@@ -347,17 +395,17 @@ class ContrastSampler:
         neighbours."""
         if first_refined_key is None:
             first_refined_key = band.width * band.height
-        radiance, alpha, contrast = self._centres(band, shade)
+        radiance, alpha, contrast = self._centres(band, shade, self.lens)
         count = SampleCount(band.pixels, 0, (band.pixels,),
                             per_pixel=dr.full(mi.UInt32, 1, band.pixels))
         refined = dr.compress(contrast > self.threshold)
         if dr.width(refined) == 0:
             return radiance, alpha, count
         samples = self._samples_within_budget(dr.width(refined), band.pixels)
-        positions = _pattern_positions(refined + dr.opaque(mi.UInt32, band.first_pixel),
-                                       band.width, samples)
+        positions, lens = _pattern_positions(refined + dr.opaque(mi.UInt32, band.first_pixel),
+                                             band.width, samples, self.lens)
         keys = index_range(first_refined_key, first_refined_key + dr.width(positions))
-        fine_radiance, fine_alpha = _traced(shade, positions, keys)
+        fine_radiance, fine_alpha = _traced(shade, positions, keys, lens)
         fine_radiance, fine_alpha = _block_means(fine_radiance, fine_alpha, samples)
         dr.scatter(radiance, fine_radiance, refined)
         dr.scatter(alpha, fine_alpha, refined)
@@ -369,12 +417,12 @@ class ContrastSampler:
         return radiance, alpha, count
 
     @staticmethod
-    def _centres(band: Band, shade: ShadeFn) -> tuple:
+    def _centres(band: Band, shade: ShadeFn, lens: bool) -> tuple:
         """Radiance, alpha and neighbourhood contrast of the centre of each
         pixel of ``band``."""
         widened = band.widened(1)
-        positions, keys = _grid_positions(band.width, widened.first_pixel, widened.pixels, 1)
-        radiance, alpha = _traced(shade, positions, keys)
+        radiance, alpha = _traced(shade, *_grid_positions(band.width, widened.first_pixel,
+                                                          widened.pixels, 1, lens))
         contrast = neighbourhood_contrast(radiance, alpha, band.width, widened.rows)
         if widened == band:
             return radiance, alpha, contrast
@@ -396,11 +444,15 @@ class ContrastSampler:
         return samples
 
 
-def _pattern_positions(pixels: mi.UInt32, width: int, samples: int) -> mi.Point2f:
-    """``samples`` Hammersley points in each of ``pixels``, pixel-major."""
+def _pattern_positions(pixels: mi.UInt32, width: int, samples: int, lens: bool = False):
+    """``samples`` Hammersley points in each of ``pixels``, pixel-major, and
+    if ``lens`` their lens points (``None`` otherwise)."""
     pattern = hammersley(samples)
-    offsets = mi.Vector2f(mi.Float(pattern[:, 0]), mi.Float(pattern[:, 1]))
+    offsets = mi.Point2f(mi.Float(pattern[:, 0]), mi.Float(pattern[:, 1]))
     index = dr.arange(mi.UInt32, dr.width(pixels) * samples)
-    pixel = dr.gather(mi.UInt32, pixels, index // samples)
+    pixel, sub = dr.gather(mi.UInt32, pixels, index // samples), index % samples
     corner = mi.Point2f(mi.Float(pixel % width), mi.Float(pixel // width))
-    return mi.Point2f(corner + dr.gather(mi.Vector2f, offsets, index % samples))
+    positions = mi.Point2f(corner + mi.Vector2f(dr.gather(mi.Point2f, offsets, sub)))
+    if not lens:
+        return positions, None
+    return positions, lens_points.halton_lens(sub, samples, lens_points.pixel_seed(pixel))

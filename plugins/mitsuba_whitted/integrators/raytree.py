@@ -120,10 +120,11 @@ class Tracer:
         """About the most rays in flight at once, for the memory estimate."""
         return self.camera_batch
 
-    def trace_camera(self, sensor: mi.Sensor, positions: mi.Point2f, keys: mi.UInt32):
+    def trace_camera(self, sensor: mi.Sensor, positions: mi.Point2f, keys: mi.UInt32,
+                     lens: mi.Point2f = None):
         """``trace`` of the camera rays through ``positions`` (pixel units
-        in the crop window)."""
-        ray, weight = camera_rays(sensor, positions)
+        in the crop window) from ``lens`` (see ``camera_rays``)."""
+        ray, weight = camera_rays(sensor, positions, lens)
         return self.trace(RayBatch(ray.o, ray.d, mi.Color3f(weight), keys))
 
     def statistics(self) -> dict:

@@ -152,21 +152,24 @@ class StackTreeTracer(Tracer):
         return self._launch_ray_kernel(self.shader.scene, self._kernel_inputs,
                                        *rays.fields())
 
-    def trace_camera(self, sensor: mi.Sensor, positions: mi.Point2f, keys: mi.UInt32):
-        """Radiance and alpha of camera rays through ``positions``, made
-        inside the kernel (no ray arrays go through memory) where Dr.Jit
-        can freeze the sensor's ray generation."""
+    def trace_camera(self, sensor: mi.Sensor, positions: mi.Point2f, keys: mi.UInt32,
+                     lens: mi.Point2f = None):
+        """Radiance and alpha of camera rays through ``positions`` from
+        ``lens`` (see ``camera_rays``), made inside the kernel (no ray
+        arrays go through memory) where Dr.Jit can freeze the sensor's ray
+        generation."""
         self._count_batch(dr.width(keys))
         self._save_totals(self._camera_kernel)
         return self._camera_kernel(dr.width(keys), self.shader.scene, sensor,
                                    self._kernel_inputs, self._counts, self._deepest,
-                                   positions, keys)
+                                   positions, keys, lens)
 
-    def _trace_camera_rays(self, scene, sensor, inputs, counts, deepest, positions, keys):
+    def _trace_camera_rays(self, scene, sensor, inputs, counts, deepest, positions, keys,
+                           lens):
         """The camera kernel's result, its rays made outside the kernel and
         passed in through memory (for the sensors whose members Mitsuba
         3.9.1 does not expose to ``dr.freeze``: orthographic, thin lens)."""
-        ray, weight = camera_rays(sensor, positions)
+        ray, weight = camera_rays(sensor, positions, lens)
         return self._launch_ray_kernel(scene, inputs, ray.o, ray.d, mi.Color3f(weight), keys)
 
     def _launch_ray_kernel(self, scene, inputs, o, d, throughput, key):
@@ -197,8 +200,9 @@ class StackTreeTracer(Tracer):
         self.stats.generations = int(self._deepest[0]) + 1 if self.stats.camera else 0
         return super().statistics()
 
-    def _trace_camera_kernel(self, scene, sensor, inputs, counts, deepest, positions, keys):
-        ray, weight = camera_rays(sensor, positions)
+    def _trace_camera_kernel(self, scene, sensor, inputs, counts, deepest, positions, keys,
+                             lens):
+        ray, weight = camera_rays(sensor, positions, lens)
         return self._trace_kernel(scene, inputs, counts, deepest, ray.o, ray.d,
                                   mi.Color3f(weight), keys)
 

@@ -124,6 +124,18 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     Both give the same image to float rounding. Pixels are box filtered over
     their own area; the film's reconstruction filter is not used.
 
+    A camera with an aperture (``thinlens``) gives depth of field by
+    distributed ray tracing (Cook 1984): every camera sample also takes a
+    point of the aperture, deterministic, and stratified together with the
+    film positions (``grid``: the film strata and the lens strata paired so
+    that every two coordinates take all combinations; ``contrast``: the
+    refinement's Hammersley points take the next two Halton coordinates;
+    ``adaptive``: each cell's quadrants take the quarters of the cell's
+    square of the lens, nested down the levels; the first, single sample of
+    a ``contrast`` pixel takes a hashed point, so that blur shows as
+    contrast). ``aa = "none"`` traces each pixel from the centre of the
+    aperture, a pinhole, and says so in a warning.
+
     The camera samples are placed by ``aa``: a sample count that
     ``mi.render`` passes (``spp``) and the sensor's sampler are not used,
     and an ``spp`` passed draws a warning. Before it allocates, a render
@@ -313,6 +325,10 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         runs once the render is known to fit, before anything large is
         allocated."""
         check_emitters(scene)
+        if self.aa == "none" and _has_aperture(sensor):
+            self._note_once("pinhole", "whitted: aa='none' traces each pixel from the centre "
+                            "of the thin lens's aperture, so the image has no depth of field; "
+                            "use 'grid', 'adaptive' or 'contrast'.")
         _settle_sampler(sensor)
         tracer = self._tracer_for(scene, int(seed))
         plan = plan_render(self._demand(sensor.film(), tracer, film_entries))
@@ -359,25 +375,31 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         """Radiance, alpha and sample count of ``band``; its refinement
         samples' keys follow the ``refined_before`` of the bands above."""
         budget = antialias.SampleBudget(self.aa_budget, render_plan.BAND_SAMPLES)
+        lens = self.aa != "none" and _has_aperture(shade.sensor)
         if self.aa == "adaptive":
             sampler = antialias.AdaptiveSampler(self.aa_threshold, self.aa_max_depth, budget,
-                                                _warn)
+                                                _warn, lens)
             return sampler.render(band, shade, 4 * band.width * band.height + refined_before)
         if self.aa == "contrast":
             sampler = antialias.ContrastSampler(self.aa_threshold, self.aa_samples, budget,
-                                                _warn)
+                                                _warn, lens)
             return sampler.render(band, shade, band.width * band.height + refined_before)
         n = self.aa_samples if self.aa == "grid" else 1
-        return antialias.render_grid(band, n, shade)
+        return antialias.render_grid(band, n, shade, lens)
 
     def _note_sample_count(self, spp: int) -> None:
         """``mi.render(..., spp=N)``: whitted places its own camera samples
         (``aa``, ``aa_samples``), so a count passed in is not used; say so
-        once per integrator rather than ignore it silently."""
-        if spp and not self._last.spp_noted:
-            self._last.spp_noted = True
-            _warn(f"whitted: spp={spp} is not used: whitted places its own camera samples, "
-                  f"set by 'aa' (now '{self.aa}') and 'aa_samples'.")
+        rather than ignore it silently."""
+        if spp:
+            self._note_once("spp", f"whitted: spp={spp} is not used: whitted places its own "
+                            f"camera samples, set by 'aa' (now '{self.aa}') and 'aa_samples'.")
+
+    def _note_once(self, subject: str, message: str) -> None:
+        """Warn about ``subject`` once in this integrator's life."""
+        if subject not in self._last.noted:
+            self._last.noted.add(subject)
+            _warn(message)
 
     def trace_rays(self, scene: mi.Scene, ray: mi.Ray3f, seed: int = 0):
         """Whitted radiance and alpha along arbitrary rays."""
@@ -415,9 +437,10 @@ class WhittedIntegrator(mi.SamplingIntegrator):
 
 
 class CameraShader:
-    """``shade(positions, keys)``: radiance and alpha of the camera rays
-    through ``positions`` (pixel units in the crop window), traced in
-    launches of at most ``batch`` rays."""
+    """``shade(positions, keys, lens=None)``: radiance and alpha of the
+    camera rays through ``positions`` (pixel units in the crop window) from
+    ``lens`` (see ``camera_rays``), traced in launches of at most ``batch``
+    rays."""
 
     def __init__(self, tracer, sensor: mi.Sensor, progress=None):
         self.tracer = tracer
@@ -427,12 +450,12 @@ class CameraShader:
         #: What the progress display calls the samples being traced.
         self.label = "camera samples"
 
-    def __call__(self, positions: mi.Point2f, keys: mi.UInt32):
+    def __call__(self, positions: mi.Point2f, keys: mi.UInt32, lens: mi.Point2f = None):
         total = dr.width(positions)
         if total <= self.batch:
             # The whole batch in one launch (every adaptive level after the
             # first): no copies in and out.
-            radiance, alpha = self.tracer.trace_camera(self.sensor, positions, keys)
+            radiance, alpha = self.tracer.trace_camera(self.sensor, positions, keys, lens)
             self._report(total, total)
             return radiance, alpha
         radiance, alpha = dr.empty(mi.Color3f, total), dr.empty(mi.Float, total)
@@ -441,7 +464,8 @@ class CameraShader:
             part = index_range(start, stop)
             part_radiance, part_alpha = self.tracer.trace_camera(
                 self.sensor, dr.gather(mi.Point2f, positions, part),
-                dr.gather(mi.UInt32, keys, part))
+                dr.gather(mi.UInt32, keys, part),
+                None if lens is None else dr.gather(mi.Point2f, lens, part))
             dr.scatter(radiance, part_radiance, part)
             dr.scatter(alpha, part_alpha, part)
             self._report(stop, total)
@@ -456,12 +480,13 @@ class CameraShader:
 class _LastRender:
     """What the last render left (see the integrator's ``last_*``)."""
 
-    __slots__ = ("built_from", "tracer", "stats", "sample_map", "rays", "spp_noted")
+    __slots__ = ("built_from", "tracer", "stats", "sample_map", "rays", "noted")
 
     def __init__(self):
         self.built_from = self.tracer = self.sample_map = self.rays = None
         self.stats = {}
-        self.spp_noted = False
+        #: Subjects of the warnings given once (``_note_once``).
+        self.noted = set()
 
 
 def _sensor(scene: mi.Scene, sensor) -> mi.Sensor:
@@ -474,6 +499,16 @@ def _sensor(scene: mi.Scene, sensor) -> mi.Sensor:
                              f"index {sensor} does not exist: the scene has {len(sensors)} "
                              "sensor(s)")
     return sensors[sensor]
+
+
+def _has_aperture(sensor: mi.Sensor) -> bool:
+    """Whether the sensor sees through an aperture of some size: a thin
+    lens whose radius is above the float epsilon that Mitsuba puts in place
+    of a radius of 0."""
+    if not sensor.needs_aperture_sample():
+        return False
+    radius = mi.traverse(sensor).get("aperture_radius")
+    return radius is None or dr.any(radius > dr.epsilon(mi.Float), axis=None)
 
 
 def _band_label(index: int, count: int) -> str:
