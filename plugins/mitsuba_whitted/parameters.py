@@ -146,10 +146,10 @@ class LastValid:
     raises: the next ``update()`` notifies them all again, and finds the old,
     valid values.
 
-    The copies cost no memory of their own: a Dr.Jit array copied shares its
-    variable, and an update replaces the variable instead of writing into it.
-    Kept in ``__slots__`` so that Dr.Jit's traversal of frozen-kernel inputs
-    does not visit them.
+    The copies cost no memory of their own: a copied Dr.Jit array shares its
+    variable, an update gives the traversed array a new one, and a write in
+    place (a scatter) copies a shared variable first. Kept in ``__slots__``
+    so that Dr.Jit's traversal of frozen-kernel inputs does not visit them.
     """
 
     __slots__ = ("_plugin_name", "_nested", "_values")
@@ -200,7 +200,7 @@ class LastValid:
             params[key] = value  # in place, and a no-op where unchanged
         # The nested objects whose values came back rebuild what they derive
         # from them, deepest first (as Mitsuba's update does); the plugin
-        # itself derived nothing yet.
+        # itself checks before it derives anything.
         nested = [(depth, node, names) for (depth, node), names
                   in params.nodes_to_update.items() if node is not plugin]
         for _, node, names in sorted(nested, key=lambda item: -item[0]):
