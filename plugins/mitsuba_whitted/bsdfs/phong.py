@@ -3,12 +3,12 @@ tracer renders it correctly too."""
 
 from __future__ import annotations
 
-import math
-
 import drjit as dr
 import mitsuba as mi
+import numpy as np
 
 from ..errors import check
+from ..parameters import LastValid, checked_numbers, describe, read_texture
 
 PLUGIN_NAME = "phong"
 
@@ -18,11 +18,8 @@ DEFAULT_EXPONENT = 30.0
 _DIFFUSE = mi.BSDFFlags.DiffuseReflection
 _GLOSSY = mi.BSDFFlags.GlossyReflection
 
-
-def check_exponent(exponent: float) -> None:
-    """Raise :class:`ParameterError` unless the Phong exponent is usable."""
-    check(math.isfinite(exponent) and exponent >= 0, PLUGIN_NAME, "exponent",
-          f"must be a finite number >= 0 (got {exponent})")
+#: The parameters that hold reflectances.
+REFLECTANCES = ("diffuse_reflectance", "specular_reflectance")
 
 
 class Phong(mi.BSDF):
@@ -34,13 +31,14 @@ class Phong(mi.BSDF):
 
      * - diffuse_reflectance
        - |spectrum| or |texture|
-       - Albedo of the diffuse lobe, :math:`\rho_d`. (Default: 0.5)
+       - Albedo of the diffuse lobe, :math:`\rho_d`: finite, and >= 0 where
+         it is constant. (Default: 0.5)
        - |exposed|, |differentiable|
 
      * - specular_reflectance
        - |spectrum| or |texture|
        - Weight of the specular highlight, :math:`\rho_s`; white in the
-         classic model. (Default: 0.2)
+         classic model. Finite, and >= 0 where constant. (Default: 0.2)
        - |exposed|, |differentiable|
 
      * - exponent
@@ -97,13 +95,12 @@ class Phong(mi.BSDF):
 
     def __init__(self, props: mi.Properties):
         mi.BSDF.__init__(self, props)
-        self.diffuse_reflectance = props.get_texture("diffuse_reflectance", 0.5)
-        self.specular_reflectance = props.get_texture("specular_reflectance", 0.2)
-        exponent = float(props.get("exponent", DEFAULT_EXPONENT))
-        check_exponent(exponent)
-        # Opaque, so that changing it through mi.traverse reuses the kernels.
-        self.exponent = dr.opaque(mi.Float, exponent)
-        self._warn_if_not_energy_conserving()
+        self.diffuse_reflectance = read_texture(props, "diffuse_reflectance", PLUGIN_NAME, 0.5)
+        self.specular_reflectance = read_texture(props, "specular_reflectance", PLUGIN_NAME, 0.2)
+        self.exponent = mi.Float(*checked_numbers(props.get("exponent", DEFAULT_EXPONENT),
+                                                  PLUGIN_NAME, "exponent"))
+        self._last_valid = LastValid(PLUGIN_NAME)
+        self.parameters_changed([])
 
         diffuse = _DIFFUSE | mi.BSDFFlags.FrontSide
         glossy = _GLOSSY | mi.BSDFFlags.FrontSide
@@ -119,22 +116,26 @@ class Phong(mi.BSDF):
                      mi.ParamFlags.Differentiable)
         callback.put("exponent", self.exponent, mi.ParamFlags.NonDifferentiable)
 
-    def parameters_changed(self, keys):
-        if "exponent" in keys:
-            check_exponent(self._exponent_value())
+    def parameters_changed(self, keys=()):
+        with self._last_valid.updating(self):
+            checked_numbers(self.exponent, PLUGIN_NAME, "exponent", at_least=0)
+            constants = {name: _constant_value(getattr(self, name)) for name in REFLECTANCES}
+            for name, value in constants.items():
+                check(value is None or (value >= 0).all(), PLUGIN_NAME, name,
+                      f"must not be negative (got {describe(value)})")
+            # Opaque, so that changing it through mi.traverse reuses the kernels.
             dr.make_opaque(self.exponent)
-        self._warn_if_not_energy_conserving()
+            self._warn_if_not_energy_conserving(constants)
 
     def _exponent_value(self) -> float:
         # A one-entry array in the JIT variants, a float in the scalar ones.
         return float(self.exponent[0] if dr.is_jit_v(self.exponent) else self.exponent)
 
-    def _warn_if_not_energy_conserving(self) -> None:
+    def _warn_if_not_energy_conserving(self, constants: dict) -> None:
         """Warn when constant reflectances can reflect more than they receive.
-        ``max()`` is exact for a grey constant and an upper bound for a
-        coloured one; textures that vary or have no ``max()`` are skipped."""
-        bounds = [_constant_maximum(t) for t in
-                  (self.diffuse_reflectance, self.specular_reflectance)]
+        The largest channel is exact for a grey constant and an upper bound
+        for a coloured one; textures that vary are skipped."""
+        bounds = [None if value is None else value.max() for value in constants.values()]
         if None not in bounds and sum(bounds) > 1:
             mi.Log(mi.LogLevel.Warn,
                    f"{PLUGIN_NAME}: diffuse_reflectance + specular_reflectance "
@@ -243,15 +244,12 @@ def _glossy_probability(ctx, rho_d, rho_s):
     return dr.select(total > 0, weight_s / total, 0.5)
 
 
-def _constant_maximum(texture) -> float | None:
-    """Largest value of a texture that does not vary, else ``None``."""
+def _constant_value(texture) -> np.ndarray | None:
+    """The value of a texture that does not vary (its channels), else
+    ``None``."""
     if texture.is_spatially_varying():
         return None
-    try:
-        return float(texture.max())
-    except (RuntimeError, NotImplementedError):
-        # Not every texture provides max() (Mitsuba's default raises).
-        return None
+    return np.array(texture.eval(dr.zeros(mi.SurfaceInteraction3f)), dtype=np.float64).ravel()
 
 
 mi.register_bsdf(PLUGIN_NAME, lambda props: Phong(props))

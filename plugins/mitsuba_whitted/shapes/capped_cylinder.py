@@ -5,9 +5,9 @@ from __future__ import annotations
 import mitsuba as mi
 import numpy as np
 
-from ..errors import ParameterError, check
+from ..errors import check
 from ..jit import device_array
-from ..mathutil import invert_affine_f64
+from ..parameters import LastValid, checked_numbers, checked_transform
 
 PLUGIN_NAME = "capped_cylinder"
 
@@ -19,6 +19,12 @@ CAP_PAD = 1e-4
 
 #: Traversed parameters whose change rebuilds the mesh.
 SHAPE_KEYS = ("center", "radius", "height", "segments")
+
+#: Most sides of the proxy polygon. Its largest gap to the true surface,
+#: r (1/cos(pi/n) - 1) ~ r pi^2 / (2 n^2), is 1e-9 r here, below float32's
+#: resolution of r (6e-8 r): more sides cannot change a float32 render, and
+#: only cost memory.
+MAX_SEGMENTS = 1 << 16
 
 
 def _translate(offset) -> np.ndarray:
@@ -90,13 +96,13 @@ class CappedCylinder(mi.Mesh):
 
      * - center
        - |point|
-       - Centre of the bottom cap (default: (0, 0, 0))
+       - Centre of the bottom cap, finite (default: (0, 0, 0))
      * - radius
        - |float|
-       - Radius, > 0 (default: 1)
+       - Radius, finite and > 0 (default: 1)
      * - height
        - |float|
-       - Height along the axis, > 0 (default: 1)
+       - Height along the axis, finite and > 0 (default: 1)
      * - to_world
        - |transform|
        - Placement in the world, applied after ``center``/``radius``/
@@ -104,7 +110,7 @@ class CappedCylinder(mi.Mesh):
          (default: identity)
      * - segments
        - |int|
-       - Number of sides of the proxy polygon, >= 3 (default: 64)
+       - Number of sides of the proxy polygon, from 3 to 65536 (default: 64)
 
     A closed cylinder standing on its bottom cap: in object space the solid
     ``x^2 + z^2 <= 1``, ``0 <= y <= 1`` (axis +y), placed in the world by
@@ -122,18 +128,21 @@ class CappedCylinder(mi.Mesh):
     """
 
     def __init__(self, props: mi.Properties):
-        to_world = props.get("to_world", mi.ScalarAffineTransform4d())
-        self._to_world = np.array(to_world.matrix, dtype=np.float64)
+        self._to_world, self._to_world_inverse = checked_transform(
+            props.get("to_world", mi.ScalarAffineTransform4d()), PLUGIN_NAME)
         self._shape = {
-            "center": mi.Point3f(props.get("center", mi.ScalarPoint3f(0, 0, 0))),
-            "radius": mi.Float(props.get("radius", 1.0)),
-            "height": mi.Float(props.get("height", 1.0)),
-            "segments": mi.UInt32(props.get("segments", 64)),
+            "center": mi.Point3f(*checked_numbers(props.get("center", (0, 0, 0)), PLUGIN_NAME,
+                                                  "center", size=3)),
+            "radius": mi.Float(*checked_numbers(props.get("radius", 1.0), PLUGIN_NAME, "radius")),
+            "height": mi.Float(*checked_numbers(props.get("height", 1.0), PLUGIN_NAME, "height")),
+            "segments": mi.UInt32(_checked_segments(props.get("segments", 64))),
         }
         self._validate()
         positions, *_ , faces = canonical_mesh(self.segments)
         super().__init__(props.id() or PLUGIN_NAME, len(positions), len(faces), props,
                          has_vertex_normals=True, has_vertex_texcoords=True)
+        # The shape's BSDF, emitter and media are objects of their own.
+        self._last_valid = LastValid(PLUGIN_NAME, nested=False)
         self._write_mesh()
 
     # -- Parameters --------------------------------------------------------
@@ -156,16 +165,9 @@ class CappedCylinder(mi.Mesh):
 
     def _validate(self) -> None:
         for name in ("radius", "height"):
-            value = getattr(self, name)
-            check(np.isfinite(value) and value > 0, PLUGIN_NAME, name,
-                  f"must be a finite number > 0 (got {value})")
-        check(self.segments >= 3, PLUGIN_NAME, "segments", f"must be >= 3 (got {self.segments})")
-        check(np.all(np.isfinite(self.center)), PLUGIN_NAME, "center", "must be finite")
-        try:
-            self._to_world_inverse = invert_affine_f64(self._to_world)
-        except (ValueError, np.linalg.LinAlgError) as error:
-            raise ParameterError(PLUGIN_NAME, "to_world",
-                                 f"must be an invertible affine transform ({error})") from None
+            checked_numbers(self._shape[name], PLUGIN_NAME, name, greater_than=0)
+        checked_numbers(self._shape["center"], PLUGIN_NAME, "center", size=3)
+        _checked_segments(self._shape["segments"])
 
     # -- Transforms for the analytic intersection --------------------------
 
@@ -212,15 +214,23 @@ class CappedCylinder(mi.Mesh):
             callback.put(name, self._shape[name], mi.ParamFlags.NonDifferentiable)
 
     def parameters_changed(self, keys) -> None:
-        if any(key in SHAPE_KEYS for key in keys):
-            self._validate()
-            self._write_mesh()  # notifies the mesh of its new buffers
-        super().parameters_changed(keys)
+        with self._last_valid.updating(self):
+            if any(key in SHAPE_KEYS for key in keys):
+                self._validate()
+                self._write_mesh()  # notifies the mesh of its new buffers
+            super().parameters_changed(keys)
 
     def to_string(self) -> str:
         return (f"CappedCylinder[center={self.center.tolist()}, radius={self.radius}, "
                 f"height={self.height}, segments={self.segments}, "
                 f"vertex_count={self.vertex_count()}, face_count={self.face_count()}]")
+
+
+def _checked_segments(value) -> int:
+    count = checked_numbers(value, PLUGIN_NAME, "segments")[0]
+    check(count.is_integer() and 3 <= count <= MAX_SEGMENTS, PLUGIN_NAME, "segments",
+          f"must be a whole number from 3 to {MAX_SEGMENTS} (got {count:g})")
+    return int(count)
 
 
 mi.register_shape(PLUGIN_NAME, lambda props: CappedCylinder(props))

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import drjit as dr
 import mitsuba as mi
+import numpy as np
 
 from ..errors import check
+from ..parameters import LastValid, checked_numbers
 from .common import nested_texture, uv_remap_base
 
 PLUGIN_NAME = "planar_map"
@@ -30,12 +32,13 @@ class PlanarMap(uv_remap_base()):
 
      * - x_min, x_max
        - |float|
-       - World x range the image spans once; x_max > x_min. (Default: -1, 1)
+       - World x range the image spans once: finite, x_max > x_min, and a
+         span float32 can divide by. (Default: -1, 1)
        - |exposed|
 
      * - z_min, z_max
        - |float|
-       - World z range the image spans once; z_max > z_min. (Default: -1, 1)
+       - World z range the image spans once, as for x. (Default: -1, 1)
        - |exposed|
 
     The report's texture for its ground plane, for the world point
@@ -81,16 +84,18 @@ class PlanarMap(uv_remap_base()):
         mi.Texture.__init__(self, props)
         self.texture = nested_texture(props, PLUGIN_NAME)
         for name, default in DEFAULT_BOUNDS.items():
-            setattr(self, name, mi.Float(props.get(name, default)))
+            setattr(self, name, mi.Float(*checked_numbers(props.get(name, default),
+                                                          PLUGIN_NAME, name)))
+        self._last_valid = LastValid(PLUGIN_NAME)
         self.parameters_changed([])
 
-    def parameters_changed(self, keys=None):
-        for axis in ("x", "z"):
-            low, high = getattr(self, f"{axis}_min"), getattr(self, f"{axis}_max")
-            check(dr.all(high > low), PLUGIN_NAME, f"{axis}_max",
-                  f"must be greater than {axis}_min (got {axis}_min={dr.slice(low, 0)}, "
-                  f"{axis}_max={dr.slice(high, 0)})")
-        dr.make_opaque(self.x_min, self.x_max, self.z_min, self.z_max)
+    def parameters_changed(self, keys=()):
+        with self._last_valid.updating(self):
+            bounds = {name: checked_numbers(getattr(self, name), PLUGIN_NAME, name)[0]
+                      for name in DEFAULT_BOUNDS}
+            for axis in ("x", "z"):
+                _check_span(bounds, axis, keys)
+            dr.make_opaque(self.x_min, self.x_max, self.z_min, self.z_max)
 
     def remap_uv(self, si):
         return mi.Point2f((si.p.x - self.x_min) / (self.x_max - self.x_min),
@@ -104,6 +109,21 @@ class PlanarMap(uv_remap_base()):
     def to_string(self):
         bounds = ", ".join(f"{name} = {dr.slice(getattr(self, name), 0)}" for name in DEFAULT_BOUNDS)
         return f"PlanarMap[\n  {bounds},\n{self.nested_string()}\n]"
+
+
+def _check_span(bounds: dict, axis: str, keys) -> None:
+    """``{axis}_max > {axis}_min`` by a span float32 can hold and divide by
+    (the uv formula divides by it). The error names the bound that was just
+    changed: the maximum, unless only the minimum was."""
+    low, high = f"{axis}_min", f"{axis}_max"
+    name, problem = ((low, f"must be less than {high}") if low in keys and high not in keys
+                     else (high, f"must be greater than {low}"))
+    got = f"(got {low}={bounds[low]:g}, {high}={bounds[high]:g})"
+    span = np.float32(bounds[high]) - np.float32(bounds[low])
+    check(span > 0, PLUGIN_NAME, name, f"{problem} {got}")
+    with np.errstate(divide="ignore", over="ignore"):
+        usable = np.isfinite(span) and np.isfinite(np.float32(1) / span)
+    check(usable, PLUGIN_NAME, name, f"{problem} by a span float32 can hold and divide by {got}")
 
 
 mi.register_texture(PLUGIN_NAME, lambda props: PlanarMap(props))

@@ -9,6 +9,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..errors import check_choice
+from ..parameters import LastValid, checked_numbers
 from .common import (HiddenParameter, apply_rows, inverse_rows, nested_texture,
                      read_to_world, uv_remap_base)
 
@@ -69,14 +70,16 @@ class SphereMap(uv_remap_base()):
 
      * - center
        - |point|
-       - If given, the direction is ``normalize(p − center)`` for the
-         surface point p; otherwise it is the shading normal. (Default: none)
+       - If given (three finite numbers), the direction is
+         ``normalize(p − center)`` for the surface point p; otherwise it is
+         the shading normal. (Default: none)
        - |exposed|
 
      * - to_world
        - |transform|
        - Orientation of the mapping frame: the direction d is mapped as
-         ``to_world⁻¹ · d`` before the formulas below. (Default: identity)
+         ``to_world⁻¹ · d`` before the formulas below; any invertible affine
+         map. (Default: identity)
        - |exposed|
 
     The report's "non planar texturing": texture coordinates come from a
@@ -126,14 +129,19 @@ class SphereMap(uv_remap_base()):
         self.texture = nested_texture(props, PLUGIN_NAME)
         self.mapping = check_choice(props.get("mapping", "asin"), tuple(MAPPINGS),
                                     PLUGIN_NAME, "mapping")
-        self.center = (mi.Point3f(props.get("center")) if "center" in props else None)
-        self._to_world = HiddenParameter(read_to_world(props))
+        self.center = (mi.Point3f(*checked_numbers(props.get("center"), PLUGIN_NAME, "center",
+                                                   size=3))
+                       if "center" in props else None)
+        self._to_world = HiddenParameter(read_to_world(props, PLUGIN_NAME))
+        self._last_valid = LastValid(PLUGIN_NAME)
         self.parameters_changed([])
 
-    def parameters_changed(self, keys=None):
-        self.to_local = inverse_rows(self._to_world.value, PLUGIN_NAME)
-        if self.center is not None:
-            dr.make_opaque(self.center)
+    def parameters_changed(self, keys=()):
+        with self._last_valid.updating(self):
+            if self.center is not None:
+                checked_numbers(self.center, PLUGIN_NAME, "center", size=3)
+                dr.make_opaque(self.center)
+            self.to_local = inverse_rows(self._to_world.value, PLUGIN_NAME)
 
     def direction(self, si: mi.SurfaceInteraction3f) -> mi.Vector3f:
         d = si.sh_frame.n if self.center is None else si.p - self.center

@@ -9,6 +9,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..errors import check
+from ..parameters import LastValid, checked_numbers
 from .common import HiddenParameter, apply_rows, inverse_rows, read_to_world
 
 PLUGIN_NAME = "tartan"
@@ -35,13 +36,14 @@ class Tartan(mi.Texture):
 
      * - color
        - |rgb|
-       - Colour of the squares. (Default: orange, (1, 0.5, 0))
+       - Colour of the squares, each channel >= 0. (Default: orange, (1, 0.5, 0))
        - |exposed|, |differentiable|
 
      * - to_world
        - |transform|
        - Places the pattern in the world: it is evaluated at
-         ``to_world⁻¹ · p`` for the surface point p. (Default: identity)
+         ``to_world⁻¹ · p`` for the surface point p; any invertible affine
+         map. (Default: identity)
        - |exposed|
 
     The procedural texture of the COSC363 report. At the (texture-space)
@@ -84,17 +86,21 @@ class Tartan(mi.Texture):
         check(mi.is_rgb, PLUGIN_NAME, "color",
               f"is RGB, which the variant '{mi.variant()}' cannot use: choose an RGB "
               "variant such as llvm_ad_rgb")
-        self.frequency = mi.Float(props.get("frequency", DEFAULT_FREQUENCY))
-        self.color = mi.Color3f(props.get("color", mi.ScalarColor3f(DEFAULT_COLOR)))
-        self._to_world = HiddenParameter(read_to_world(props))
+        self.frequency = mi.Float(*checked_numbers(props.get("frequency", DEFAULT_FREQUENCY),
+                                                   PLUGIN_NAME, "frequency"))
+        self.color = mi.Color3f(*checked_numbers(props.get("color", DEFAULT_COLOR), PLUGIN_NAME,
+                                                 "color", size=3, broadcast=True))
+        self._to_world = HiddenParameter(read_to_world(props, PLUGIN_NAME))
+        self._last_valid = LastValid(PLUGIN_NAME)
         self.parameters_changed([])
 
-    def parameters_changed(self, keys=None):
-        check(dr.all(self.frequency > 0), PLUGIN_NAME, "frequency",
-              f"must be > 0 (got {dr.slice(self.frequency, 0)})")
-        self.to_local = inverse_rows(self._to_world.value, PLUGIN_NAME)
-        # Opaque: a new value must not bake a new constant into every kernel.
-        dr.make_opaque(self.frequency, self.color)
+    def parameters_changed(self, keys=()):
+        with self._last_valid.updating(self):
+            checked_numbers(self.frequency, PLUGIN_NAME, "frequency", greater_than=0)
+            checked_numbers(self.color, PLUGIN_NAME, "color", size=3, at_least=0)
+            self.to_local = inverse_rows(self._to_world.value, PLUGIN_NAME)
+            # Opaque: a new value must not bake a new constant into every kernel.
+            dr.make_opaque(self.frequency, self.color)
 
     def traverse(self, callback):
         callback.put("frequency", self.frequency, mi.ParamFlags.NonDifferentiable)

@@ -1,0 +1,310 @@
+"""Bad parameters of ``phong``, ``capped_cylinder``, ``tartan``,
+``sphere_map`` and ``planar_map``: refused with one sentence naming the
+plugin and the parameter, from a dictionary, from XML and through
+``mi.traverse(...).update()``; a refused update changes nothing.
+
+Oracles: the traversed values and a ``whitted`` render from before the
+refused update (bit for bit), and a scene loaded anew with the values of a
+later, valid update through the same ``SceneParameters``."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+import pytest
+
+from conftest import assert_finite
+from mitsuba_whitted.errors import ParameterError
+from scenes import camera, diffuse, floor, integrator, point_light, rgb, scene, sphere
+
+LEMONS = str(Path(__file__).resolve().parent.parent / "textures" / "lemons.png")
+NAN, INF = math.nan, math.inf
+
+
+def bitmap(**props):
+    return {"type": "bitmap", "filename": LEMONS, **props}
+
+
+def textured(texture):
+    return {"type": "diffuse", "reflectance": texture}
+
+
+def phong(**props):
+    return sphere((0, 0, 0), 1.0, {"type": "phong", **props})
+
+
+def capped_cylinder(**props):
+    return {"type": "capped_cylinder", "center": [0, -0.6, 0], "radius": 0.8, "height": 1.2,
+            "segments": 24, "bsdf": diffuse(0.7, 0.7, 0.7), **props}
+
+
+def tartan(**props):
+    return sphere((0, 0, 0), 1.0, textured({"type": "tartan", **props}))
+
+
+def sphere_map(**props):
+    return sphere((0, 0, 0), 1.0, textured({"type": "sphere_map", "texture": bitmap(),
+                                            "center": [0, 0, 0], **props}))
+
+
+def planar_map(**props):
+    return floor(bsdf=textured({"type": "planar_map", "texture": bitmap(), **props}))
+
+
+#: Each plugin: the scene object using it (its keyword arguments become the
+#: plugin's properties), where its parameters sit in ``mi.traverse(scene)``,
+#: and one valid update (a value that works as a property to load too).
+PLUGINS = {
+    "phong": (phong, "obj.bsdf.", ("exponent", 80.0)),
+    "capped_cylinder": (capped_cylinder, "obj.", ("radius", 0.5)),
+    "tartan": (tartan, "obj.bsdf.reflectance.", ("frequency", 7.0)),
+    "sphere_map": (sphere_map, "obj.bsdf.reflectance.",
+                   ("to_world", lambda: mi.ScalarTransform4f().rotate([0, 1, 0], 50))),
+    "planar_map": (planar_map, "obj.bsdf.reflectance.", ("x_max", 3.0)),
+}
+
+
+def load(plugin, **props):
+    make, _, _ = PLUGINS[plugin]
+    return mi.load_dict(scene(point_light((2, 3, 4), 30.0), sensor=camera(size=16),
+                              whitted=integrator(aa="none"), obj=make(**props)))
+
+
+def render(loaded) -> np.ndarray:
+    image = np.array(mi.render(loaded))
+    assert_finite(image)
+    return image
+
+
+def evaluated(value):
+    """A value built here only once a variant is set (transforms)."""
+    return value() if callable(value) else value
+
+
+def snapshot(params, prefix: str) -> dict:
+    """Copies of every traversed value under ``prefix`` (transforms by
+    their matrix; a Dr.Jit vector answers ``.matrix`` too, as a swizzle)."""
+    values = {}
+    for key in params.keys():
+        if key.startswith(prefix):
+            value = params[key]
+            if not dr.is_array_v(value):
+                value = getattr(value, "matrix", value)
+            values[key] = np.array(value, dtype=np.float64)
+    return values
+
+
+def assert_same_values(now: dict, before: dict) -> None:
+    assert now.keys() == before.keys()
+    for key in before:
+        np.testing.assert_array_equal(now[key], before[key], err_msg=key)
+
+
+def named(name, make):
+    make.__name__ = name
+    return make
+
+
+def lanes(count):
+    """The traversed value with ``count`` lanes instead of one."""
+    def make(current):
+        row = [1.0] * count
+        size = dr.size_v(type(current))
+        return type(current)(row) if size == dr.Dynamic else type(current)(*[row] * size)
+    return named(f"{count}-lanes", make)
+
+
+def filled(value):
+    """The traversed value with every entry ``value``."""
+    return named(f"all-{value}", lambda current: dr.full(type(current), value, dr.width(current)))
+
+
+def transform(name, *rows):
+    return named(name, lambda current=None: mi.ScalarTransform4f(np.array(rows, dtype=np.float64)))
+
+
+SINGULAR = transform("singular", [1, 0, 0, 0], [0, 0, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1])
+NAN_MATRIX = transform("nan-matrix", [NAN, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1])
+PROJECTIVE = transform("projective", [1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 3])
+NAN_UV = named("nan-to_uv", lambda current: mi.ScalarTransform3f(
+    np.array([[NAN, 0, 0], [0, 1, 0], [0, 0, 1]])))
+
+
+#: (plugin, parameter, a bad value for an update or a function of the
+#: traversed value that makes one, a mistake in the same parameter as a
+#: property to load (None where it is not one), and as XML).
+CASES = [
+    ("phong", "exponent", NAN, NAN, '<float name="exponent" value="nan"/>'),
+    ("phong", "exponent", INF, INF, '<float name="exponent" value="inf"/>'),
+    ("phong", "exponent", -1.0, -1.0, '<float name="exponent" value="-1"/>'),
+    ("phong", "exponent", lanes(2), "30", '<string name="exponent" value="30"/>'),
+    ("phong", "diffuse_reflectance.value", filled(NAN), rgb(NAN, 0.5, 0.5),
+     '<rgb name="diffuse_reflectance" value="nan, 0.5, 0.5"/>'),
+    ("phong", "diffuse_reflectance.value", filled(-0.5), -0.5,
+     '<float name="diffuse_reflectance" value="-0.5"/>'),
+    ("phong", "specular_reflectance.value", filled(INF), rgb(-1, 0, 0),
+     '<rgb name="specular_reflectance" value="-1, 0, 0"/>'),
+    ("phong", "specular_reflectance.value", filled(-1.0), "white",
+     '<string name="specular_reflectance" value="white"/>'),
+    ("capped_cylinder", "radius", -1.0, -1.0, '<float name="radius" value="-1"/>'),
+    ("capped_cylinder", "radius", 0.0, 0.0, '<float name="radius" value="0"/>'),
+    ("capped_cylinder", "radius", NAN, NAN, '<float name="radius" value="nan"/>'),
+    ("capped_cylinder", "radius", lanes(2), [1, 2, 3], '<string name="radius" value="1"/>'),
+    ("capped_cylinder", "height", 0.0, 0.0, '<float name="height" value="0"/>'),
+    ("capped_cylinder", "height", INF, INF, '<float name="height" value="inf"/>'),
+    ("capped_cylinder", "segments", 2, 2, '<integer name="segments" value="2"/>'),
+    ("capped_cylinder", "segments", 1 << 20, 6.5, '<float name="segments" value="6.5"/>'),
+    ("capped_cylinder", "segments", 0, -1, '<integer name="segments" value="-1"/>'),
+    ("capped_cylinder", "center", [NAN, 0, 0], [NAN, 0, 0],
+     '<point name="center" x="nan" y="0" z="0"/>'),
+    ("capped_cylinder", "center", [0, INF, 0], 5.0, '<float name="center" value="5"/>'),
+    ("capped_cylinder", "vertex_positions", filled(NAN), None, None),
+    ("tartan", "frequency", INF, INF, '<float name="frequency" value="inf"/>'),
+    ("tartan", "frequency", NAN, NAN, '<float name="frequency" value="nan"/>'),
+    ("tartan", "frequency", 0.0, "3", '<string name="frequency" value="3"/>'),
+    ("tartan", "color", [NAN, 0, 0], rgb(NAN, 0, 0), '<rgb name="color" value="nan, 0, 0"/>'),
+    ("tartan", "color", [-1, 0.5, 0], rgb(-1, 0.5, 0), '<rgb name="color" value="-1, 0.5, 0"/>'),
+    ("tartan", "color", lanes(2), "orange", '<string name="color" value="orange"/>'),
+    ("tartan", "to_world", SINGULAR, SINGULAR,
+     '<transform name="to_world"><scale x="1" y="0" z="1"/></transform>'),
+    ("tartan", "to_world", NAN_MATRIX, NAN_MATRIX,
+     '<transform name="to_world"><matrix value="nan 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1"/></transform>'),
+    ("tartan", "to_world", PROJECTIVE, "identity", '<string name="to_world" value="identity"/>'),
+    ("sphere_map", "center", [NAN, 0, 0], [NAN, 0, 0],
+     '<point name="center" x="nan" y="0" z="0"/>'),
+    ("sphere_map", "center", [INF, 0, 0], 1.0, '<float name="center" value="1"/>'),
+    ("sphere_map", "center", lanes(2), "middle", '<string name="center" value="middle"/>'),
+    ("sphere_map", "to_world", SINGULAR, SINGULAR,
+     '<transform name="to_world"><scale x="0"/></transform>'),
+    ("sphere_map", "to_world", PROJECTIVE, NAN_MATRIX,
+     '<transform name="to_world"><matrix value="1 0 0 0 0 1 0 0 0 0 1 inf 0 0 0 1"/></transform>'),
+    ("sphere_map", "texture.to_uv", NAN_UV, None, None),
+    ("planar_map", "x_min", NAN, NAN, '<float name="x_min" value="nan"/>'),
+    ("planar_map", "x_min", 1.0, True, '<boolean name="x_min" value="true"/>'),
+    ("planar_map", "x_max", INF, INF, '<float name="x_max" value="inf"/>'),
+    ("planar_map", "x_max", -1.0, "two", '<string name="x_max" value="two"/>'),
+    ("planar_map", "z_min", lanes(2), [1, 2, 3], '<vector name="z_min" x="1" y="2" z="3"/>'),
+    ("planar_map", "z_min", 5.0, "-5", '<string name="z_min" value="-5"/>'),
+    ("planar_map", "z_max", NAN, NAN, '<float name="z_max" value="nan"/>'),
+    ("planar_map", "z_max", -2.0, -2.0, '<float name="z_max" value="-2"/>'),
+]
+
+XML_SCENE = """<scene version="3.0.0">
+    <integrator type="whitted"/>
+    <sensor type="perspective">
+        <film type="hdrfilm"><integer name="width" value="16"/><integer name="height" value="16"/></film>
+    </sensor>
+    {}
+</scene>"""
+
+XML_OBJECTS = {
+    "phong": '<shape type="sphere"><bsdf type="phong">{}</bsdf></shape>',
+    "capped_cylinder": '<shape type="capped_cylinder">{}</shape>',
+    "tartan": '<shape type="sphere"><bsdf type="diffuse">'
+              '<texture type="tartan" name="reflectance">{}</texture></bsdf></shape>',
+    "sphere_map": '<shape type="sphere"><bsdf type="diffuse">'
+                  '<texture type="sphere_map" name="reflectance">{}'
+                  f'<texture type="bitmap" name="texture"><string name="filename" value="{LEMONS}"/>'
+                  '</texture></texture></bsdf></shape>',
+    "planar_map": '<shape type="rectangle"><bsdf type="diffuse">'
+                  '<texture type="planar_map" name="reflectance">{}'
+                  f'<texture type="bitmap" name="texture"><string name="filename" value="{LEMONS}"/>'
+                  '</texture></texture></bsdf></shape>',
+}
+
+
+def assert_one_sentence(message: str, plugin: str, parameter: str, *, loading: bool) -> None:
+    """``message`` is the plugin's one sentence about ``parameter`` (or
+    about the nested object that holds it). When loading, Mitsuba's parser
+    puts the plugin's exception, as its last line, under a traceback of its
+    own."""
+    lines = message.strip().splitlines()
+    assert loading or len(lines) == 1, message
+    sentence = lines[-1]
+    if loading:
+        assert sentence.startswith("ParameterError: "), message
+        sentence = sentence.removeprefix("ParameterError: ")
+    assert sentence.startswith(f"{plugin}: parameter '{parameter.split('.')[0]}"), message
+    assert ". " not in sentence, message
+
+
+def case_id(case):
+    plugin, parameter, bad = case[:3]
+    return f"{plugin}-{parameter}-{getattr(bad, '__name__', bad)}"
+
+
+@pytest.mark.parametrize("plugin, parameter, bad, load_bad, xml", CASES,
+                         ids=[case_id(case) for case in CASES])
+def test_bad_value_is_refused_and_a_refused_update_changes_nothing(plugin, parameter, bad,
+                                                                   load_bad, xml):
+    if load_bad is not None:
+        with pytest.raises(RuntimeError) as refused:
+            load(plugin, **{parameter.split(".")[0]: evaluated(load_bad)})
+        assert_one_sentence(str(refused.value), plugin, parameter, loading=True)
+        with pytest.raises(RuntimeError) as refused:
+            mi.load_string(XML_SCENE.format(XML_OBJECTS[plugin].format(xml)))
+        assert_one_sentence(str(refused.value), plugin, parameter, loading=True)
+
+    loaded = load(plugin)
+    _, prefix, (good_key, good_value) = PLUGINS[plugin]
+    params = mi.traverse(loaded)
+    key = prefix + parameter
+    values_before = snapshot(params, "obj.")
+    image_before = render(loaded)
+
+    params[key] = bad(params[key]) if callable(bad) else bad
+    with pytest.raises(ParameterError) as refused:
+        params.update()
+    assert_one_sentence(str(refused.value), plugin, parameter, loading=False)
+    assert_same_values(snapshot(params, "obj."), values_before)
+    np.testing.assert_array_equal(render(loaded), image_before)
+
+    # A valid update through the same parameters is applied in full.
+    params[prefix + good_key] = evaluated(good_value)
+    params.update()
+    updated = render(loaded)
+    assert not np.array_equal(updated, image_before)
+    np.testing.assert_array_equal(updated, render(load(plugin, **{good_key: evaluated(good_value)})))
+
+
+def test_a_refused_update_of_several_values_restores_them_all():
+    """Radius valid, height not: the radius comes back too, and so does the
+    mesh built from neither."""
+    loaded = load("capped_cylinder")
+    params = mi.traverse(loaded)
+    values_before = snapshot(params, "obj.")
+    image_before = render(loaded)
+    params["obj.radius"] = 0.3
+    params["obj.height"] = -1.0
+    with pytest.raises(ParameterError, match="capped_cylinder: parameter 'height'"):
+        params.update()
+    assert_same_values(snapshot(params, "obj."), values_before)
+    np.testing.assert_array_equal(render(loaded), image_before)
+
+
+def test_a_nested_texture_rebuilds_itself_from_the_restored_values():
+    """A nested ``bitmap`` rebuilds its texture and its mean from new data
+    before ``sphere_map`` sees it; after the refusal both are the old ones
+    again (oracle: the same evaluations before the update)."""
+    data = np.random.default_rng(16).uniform(0, 1, (8, 8, 3)).astype(np.float32)
+    texture = mi.load_dict({"type": "sphere_map", "texture": {
+        "type": "bitmap", "raw": True, "data": mi.TensorXf(data)}})
+    si = dr.zeros(mi.SurfaceInteraction3f, 64)
+    si.sh_frame.n = mi.Normal3f(np.random.default_rng(7).normal(size=(3, 64)).astype(np.float32))
+
+    def evaluations():
+        return np.array(texture.eval(si)), np.array(texture.mean())
+
+    before = evaluations()
+    params = mi.traverse(texture)
+    poisoned = data.copy()
+    poisoned[3, 4, 1] = NAN
+    params["texture.data"] = mi.TensorXf(poisoned)
+    with pytest.raises(ParameterError, match="sphere_map: parameter 'texture.data'"):
+        params.update()
+    for now, then in zip(evaluations(), before):
+        np.testing.assert_array_equal(now, then)
