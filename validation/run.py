@@ -127,12 +127,12 @@ def report_scene_section(report: MarkdownReport, cache: ReferenceCache) -> None:
     key = cache_key(kind="report scene", scene=scene_digest(REPORT_SCENE, defines),
                     spp=SCENE_SPP, passes=16, integrator={"type": "path", "max_depth": 32})
     reference = cached_reference(cache, key, scene, SCENE_SPP, progress=Progress())
-    seed_look = scene.integrator()
+    report_look = scene.integrator()
     physical = mi.load_dict({"type": "whitted", **scene_whitted_settings(scene),
                              "shadows": "physical", "ambient": {"type": "rgb", "value": [0, 0, 0]}})
     images = {}
     rows = []
-    for label, integrator in (("seed look", seed_look), ("physical", physical)):
+    for label, integrator in (("report's look", report_look), ("physical", physical)):
         image, first, warm = timed_render(scene, integrator, repeats=WARM_RENDERS)
         images[label] = image
         excess = missing_light(reference.image, image).sum() / luminance(reference.image).sum()
@@ -144,8 +144,8 @@ def report_scene_section(report: MarkdownReport, cache: ReferenceCache) -> None:
     report.heading("2. The report's scene")
     report.paragraph(
         f"`scenes/cosc363.xml` at {SCENE_RES} x {SCENE_RES}, adaptive anti-aliasing as in the "
-        "report (threshold 0.25, 10 levels). *Seed look*: the scene as written, with the "
-        "report's ambient term (0.2) and `shadows=\"seed\"`, which lets tinted light "
+        "report (threshold 0.25, 10 levels). *Report's look*: the scene as written, with the "
+        "report's ambient term (0.2) and `shadows=\"tinted\"`, which lets tinted light "
         "through the refracting glass. *Physical*: the same with no ambient term and "
         "`shadows=\"physical\"`, where glass casts a shadow as it does for the path tracer. "
         f"Reference: `path` (max_depth 32), {reference.spp} spp in 16 passes, "
@@ -158,16 +158,17 @@ def report_scene_section(report: MarkdownReport, cache: ReferenceCache) -> None:
         "image, as a share of the reference's total luminance: indirect diffuse light and "
         "caustics, which Whitted has no path for. *Light added*: the other sign, light "
         "Whitted has and the reference lacks (the ambient term, light through glass in the "
-        "seed look).")
+        "report's look).")
     maps = {label: missing_light(image, reference.image) for label, image in images.items()}
     vmax = max(float(np.percentile(m, 99.5)) for m in maps.values())
     report.figures([(report.image("cosc363_reference.png", reference.image), "path reference"),
-                    (report.image("cosc363_seed.png", images["seed look"]), "Whitted, seed look"),
+                    (report.image("cosc363_look.png", images["report's look"]),
+                     "Whitted, report's look"),
                     (report.image("cosc363_physical.png", images["physical"]),
                      "Whitted, physical")])
-    report.figures([(report.heatmap("cosc363_left_out_seed.png", maps["seed look"],
+    report.figures([(report.heatmap("cosc363_left_out_look.png", maps["report's look"],
                                     "luminance left out", vmax, "viridis"),
-                     "left out by the seed look"),
+                     "left out by the report's look"),
                     (report.heatmap("cosc363_left_out_physical.png", maps["physical"],
                                     "luminance left out", vmax, "viridis"),
                      "left out by the physical mode")])

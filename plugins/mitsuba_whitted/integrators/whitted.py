@@ -17,7 +17,8 @@ from .scene_ref import SceneRef, identity
 PLUGIN_NAME = "whitted"
 
 AA_MODES = ("none", "grid", "adaptive", "contrast")
-SHADOW_MODES = ("physical", "seed")
+#: ``"seed"``, the mode's first name, still names ``"tinted"``.
+SHADOW_MODES = ("physical", "tinted", "seed")
 #: ``max_depth = -1`` means "until pruned"; this cap keeps two facing
 #: perfect mirrors from looping forever.
 UNBOUNDED_DEPTH = 256
@@ -49,8 +50,17 @@ class WhittedIntegrator(mi.SamplingIntegrator):
        - ``"physical"``: shadow rays pass only surfaces that transmit
          without bending light (index-matched or thin dielectrics, null,
          mask), tinted by their transmittance, as Mitsuba's path tracer
-         sees them. ``"seed"``: refracting surfaces pass tinted light too,
-         the report's lightened shadows behind glass. (Default: physical)
+         sees them. ``"tinted"`` (also ``"seed"``): refracting surfaces pass
+         light too, the report's lightened shadows behind glass. The shadow
+         ray goes on straight; at each surface it crosses, it passes the
+         part the surface transmits at the angle where the ray meets it, as
+         if arriving from outside (1 - Fresnel reflectance, times the
+         surface's transmittance), so both crossings of a closed object
+         count and there is no total internal reflection on the way out.
+         Under a glass sphere of index n and transmittance T, the centre of
+         the shadow receives (1 - ((n - 1) / (n + 1))\ :sup:`2`)\ :sup:`2`
+         T\ :sup:`2` of the light it would receive unshadowed.
+         (Default: physical)
      * - emitter_samples
        - |int|
        - Shadow rays per hit for each area or environment emitter, placed
