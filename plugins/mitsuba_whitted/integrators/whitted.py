@@ -213,10 +213,12 @@ class WhittedIntegrator(mi.SamplingIntegrator):
                     needs: SceneNeeds = None):
         """A ray-tree tracer specialised to what ``scene`` contains: the
         stack tracer where its stack is deep enough, else (or when asked,
-        e.g. to capture each generation's rays) the wavefront tracer."""
+        e.g. to capture each generation's rays) the wavefront tracer.
+        ``needs`` replaces ``analyse(scene)``, e.g. to trace with another
+        absolute offset length (its ``scale``)."""
         needs = needs or analyse(scene)
         scene_ref = SceneRef(scene)
-        refiner = (AnalyticRefiner(scene_ref, needs.analytic_shapes)
+        refiner = (AnalyticRefiner(scene_ref, needs.analytic_shapes, needs.scale)
                    if needs.analytic_shapes else None)
         intersect = refiner.intersect if refiner else _plain_intersect(scene_ref)
         shadows = ShadowTester(scene_ref, needs, self.shadows, intersect)
@@ -317,9 +319,11 @@ class WhittedIntegrator(mi.SamplingIntegrator):
 
         return shade
 
-    def trace_rays(self, scene: mi.Scene, ray: mi.Ray3f, seed: int = 0):
-        """Whitted radiance and alpha along arbitrary rays."""
-        tracer = self.make_tracer(scene, seed)
+    def trace_rays(self, scene: mi.Scene, ray: mi.Ray3f, seed: int = 0,
+                   needs: SceneNeeds = None):
+        """Whitted radiance and alpha along arbitrary rays (``needs``: see
+        ``make_tracer``)."""
+        tracer = self.make_tracer(scene, seed, needs=needs)
         keys = dr.arange(mi.UInt32, dr.width(ray.o))
         return tracer.trace(RayBatch(mi.Point3f(ray.o), mi.Vector3f(ray.d),
                                      mi.Color3f(1), keys))
