@@ -49,14 +49,16 @@ class WhittedIntegrator(mi.SamplingIntegrator):
        - |string|
        - ``"physical"``: shadow rays pass only surfaces that transmit
          without bending light (index-matched or thin dielectrics, null,
-         mask), tinted by their transmittance, as Mitsuba's path tracer
-         sees them. ``"tinted"`` (also ``"seed"``): refracting surfaces pass
-         light too, the report's lightened shadows behind glass. The shadow
-         ray goes on straight; at each surface it crosses, it passes the
-         part the surface transmits at the angle where the ray meets it, as
-         if arriving from outside (1 - Fresnel reflectance, times the
-         surface's transmittance), so both crossings of a closed object
-         count and there is no total internal reflection on the way out.
+         mask), tinted by their transmittance; refracting surfaces block
+         them, as they block Mitsuba's (``volpath`` passes null, mask and
+         thin surfaces too; ``path`` passes none). ``"tinted"`` (also
+         ``"seed"``): refracting surfaces pass light too, the report's
+         lightened shadows behind glass. The shadow ray goes on straight;
+         at each surface it crosses, it passes the part the surface
+         transmits at the angle where the ray meets it, as if arriving from
+         outside (1 - Fresnel reflectance, times the surface's
+         transmittance), so both crossings of a closed object count and
+         there is no total internal reflection on the way out.
          Under a glass sphere of index n and transmittance T, the centre of
          the shadow receives (1 - ((n - 1) / (n + 1))\ :sup:`2`)\ :sup:`2`
          T\ :sup:`2` of the light it would receive unshadowed.
