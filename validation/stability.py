@@ -704,7 +704,8 @@ def judge_scaled(name: str, image: np.ndarray, reference: np.ndarray) -> CaseRes
     worst = float(flat_error.max())
     return CaseResult(
         name=name, measures="whitted render (mi.render), glass + diffuse, grazing view",
-        reference="same scene rendered at scale 1", samples=int(error.size),
+        reference="the scene at scale 1, offsets of the same relative size",
+        samples=int(error.size),
         nonfinite=int((~np.isfinite(image)).sum() + (~np.isfinite(reference)).sum()),
         disagreements=int((differ & ~edge).sum()), excused=int((differ & edge).sum()),
         band=f"edge pixels (3x3 contrast > {EDGE_CONTRAST:g})", worst_error=worst,
@@ -738,7 +739,7 @@ def acne_at_scale(size: int, scale: float, unscaled: np.ndarray) -> CaseResult:
     own = judge_scaled("", image, unscaled)
     result.details = (f"scale-1 image rendered with offset term {length:g} (its own: "
                       f"{scene_scale(glass_scene(1.0, 8)):g}); against the scale-1 image with "
-                      f"its own offsets: {own.disagreements} flat pixels over the bound, worst "
+                      f"its own offsets, flat pixels over the bound: {own.disagreements}, worst "
                       f"{own.worst_error:.2g}")
     return result
 
