@@ -105,3 +105,14 @@ def test_fresnel_comparison_fails_a_wrong_formula():
     schlick = r0 + (1 - r0) * (1 - cos_t) ** 5
     worst, _ = stability.judge_fresnel(cos_i, schlick, (1 - schlick) * stability.IOR ** 2)
     assert worst > 1
+
+
+@pytest.mark.parametrize("scale", [1e-3, 1e3])
+def test_acne_case_at_the_report_size(scale):
+    """At the report's image size (96^2) rays bouncing inside the glass
+    cylinder reach edges that the quick subset's pixels miss: the scaled
+    image must still match the scale-1 one rendered with offsets of the
+    same relative size."""
+    unscaled = stability.render(stability.glass_scene(1.0, 96))
+    result = stability.acne_at_scale(96, scale, unscaled)
+    assert result.disagreements == 0 and result.passed, result.details

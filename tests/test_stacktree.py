@@ -127,8 +127,8 @@ COUNTS = ("camera", "reflection", "refraction", "passthrough", "shadow", "shadow
 @pytest.mark.parametrize("settings", [
     dict(max_depth=3), dict(max_depth=4, hide_emitters=True), dict(max_depth=10),
     dict(max_depth=8, aa="adaptive", aa_threshold=0.05, emitter_samples=4),
-    dict(max_depth=6, shadows="seed", ambient=rgb(0.1, 0.1, 0.1)),
-], ids=["depth 3", "depth 4 hidden emitters", "depth 10", "adaptive", "seed shadows"])
+    dict(max_depth=6, shadows="tinted", ambient=rgb(0.1, 0.1, 0.1)),
+], ids=["depth 3", "depth 4 hidden emitters", "depth 10", "adaptive", "tinted shadows"])
 def test_stack_and_wavefront_tracers_agree(settings):
     """Same trees, summed in another order: float rounding apart, the same
     image, and exactly the same rays."""

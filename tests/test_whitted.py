@@ -52,7 +52,7 @@ def tinted_glass(ior):
             "specular_transmittance": rgb(*TINT)}
 
 
-@pytest.mark.parametrize("shadows", ["physical", "seed"])
+@pytest.mark.parametrize("shadows", ["physical", "tinted"])
 def test_index_matched_shadow_is_transmittance_squared(shadows):
     """Two interfaces of an index-matched sphere: the tint, squared."""
     centre, outside = centre_ratio(tinted_glass(1.0), shadows)
@@ -65,19 +65,131 @@ def test_physical_shadow_behind_refracting_glass_is_black():
     assert np.all(centre == 0)
 
 
-def test_seed_shadow_behind_refracting_glass_is_tinted():
+def test_tinted_shadow_behind_refracting_glass_is_tinted():
     """Normal incidence through the centre: Fresnel transmission
-    (1 - F)^2 with F = ((n - 1) / (n + 1))^2, the radiance scalings of
-    entering and leaving cancel, and the tint applies twice."""
-    centre, _ = centre_ratio(tinted_glass(1.5), "seed")
+    (1 - F)^2 with F = ((n - 1) / (n + 1))^2, and the tint applies twice."""
+    centre, _ = centre_ratio(tinted_glass(1.5), "tinted")
     fresnel = ((1.5 - 1) / (1.5 + 1)) ** 2
     np.testing.assert_allclose(centre, (1 - fresnel) ** 2 * np.square(TINT), rtol=1e-4)
 
 
+def test_seed_is_another_name_for_tinted():
+    tinted, _ = render(shadow_scene(tinted_glass(1.5)), shadows="tinted")
+    seed, _ = render(shadow_scene(tinted_glass(1.5)), shadows="seed")
+    assert np.array_equal(tinted, seed)
+
+
 def test_opaque_occluder_blocks_in_both_modes():
-    for shadows in ("physical", "seed"):
+    for shadows in ("physical", "tinted"):
         centre, _ = centre_ratio(diffuse(0.5, 0.5, 0.5), shadows)
         assert np.all(centre == 0)
+
+
+#: A point light above a glass ball (index 1.5, tinted) above a diffuse
+#: floor: the tinted shadow in closed form.
+LAMP, GLASS_CENTRE, GLASS_RADIUS, GLASS_IOR = 4.0, 2.0, 0.5, 1.5
+#: Radius of the shadow's core on the floor: the cone from the light that
+#: grazes the ball.
+CORE = LAMP * math.tan(math.asin(GLASS_RADIUS / (LAMP - GLASS_CENTRE)))
+
+
+def floor_transmittance(x, z):
+    """What reaches the floor points (x, 0, z) from the light through the
+    ball in ``tinted`` mode, relative to the floor without the ball: the
+    Whitted radiance of rays falling straight onto them, which cross
+    nothing but the floor."""
+    ray = mi.Ray3f(mi.Point3f(*np.stack([x, np.full_like(x, 0.1), z]).astype(np.float32)),
+                   mi.Vector3f(0, -1, 0))
+    whitted = mi.load_dict(integrator(shadows="tinted"))
+    values = []
+    for objects in ([], [sphere((0, GLASS_CENTRE, 0), GLASS_RADIUS, tinted_glass(GLASS_IOR))]):
+        loaded = mi.load_dict(scene(floor(y=0.0, size=3), point_light((0, LAMP, 0), 30.0),
+                                    *objects))
+        radiance, _ = whitted.trace_rays(loaded, ray)
+        values.append(np.array(radiance, dtype=np.float64).T)
+    lit, shaded = values
+    assert np.all(lit > 0)
+    return shaded / lit
+
+
+def fresnel_from_outside(cos_i, eta):
+    """Float64 unpolarised Fresnel reflectance of light arriving from the
+    side of index 1 on a medium of index ``eta``."""
+    cos_t = np.sqrt(1 - (1 - cos_i ** 2) / eta ** 2)
+    r_s = (cos_i - eta * cos_t) / (cos_i + eta * cos_t)
+    r_p = (eta * cos_i - cos_t) / (eta * cos_i + cos_t)
+    return (r_s ** 2 + r_p ** 2) / 2
+
+
+def _unit(v):
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def _leave(p, n, d):
+    """Mitsuba's ray origin leaving ``p`` (normal ``n``) towards ``d``,
+    in float64: (1 + max|p|) RayEpsilon along the normal (offsets.py, in a
+    scene larger than one unit)."""
+    step = (1 + np.abs(p).max(axis=-1, keepdims=True)) * float(mi.math.RayEpsilon)
+    return p + n * step * np.sign(np.sum(n * d, axis=-1, keepdims=True))
+
+
+def tinted_closed_form(x, z):
+    """Float64 model of the two segments a shadow ray takes from (x, 0, z)
+    through the ball to the light: the one from the floor meets the sphere
+    at cos(theta_1), the one from just inside the entry point leaves it at
+    cos(theta_2) (equal to cos(theta_1) but for the offsets); each crossing
+    passes 1 - F(theta) as seen from outside and the tint T, so the floor
+    gets (1 - F(theta_1)) (1 - F(theta_2)) T^2. Also returns the distance
+    of the straight segment from the ball's centre over its radius; points
+    whose segment misses the ball get 1."""
+    start = np.stack([x, np.zeros_like(x), z], axis=-1).astype(np.float32).astype(np.float64)
+    light, centre = np.array([0, LAMP, 0.0]), np.array([0, GLASS_CENTRE, 0.0])
+    origin = _leave(start, np.array([0, 1.0, 0]), light - start)
+    d = _unit(light - origin)
+    along = np.sum((centre - origin) * d, axis=-1)
+    b = np.linalg.norm(origin + along[:, None] * d - centre, axis=-1) / GLASS_RADIUS
+    entry = origin + (along - GLASS_RADIUS * np.sqrt(np.clip(1 - b ** 2, 0, 1)))[:, None] * d
+    n_entry = (entry - centre) / GLASS_RADIUS
+    inside = _leave(entry, n_entry, d)
+    d_inside = _unit(light - inside)
+    along = np.sum((centre - inside) * d_inside, axis=-1)
+    gap = np.linalg.norm(inside + along[:, None] * d_inside - centre, axis=-1) / GLASS_RADIUS
+    exit_point = inside + (along + GLASS_RADIUS * np.sqrt(np.clip(1 - gap ** 2, 0, 1)))[:, None] * d_inside
+    n_exit = (exit_point - centre) / GLASS_RADIUS
+    passed = ((1 - fresnel_from_outside(-np.sum(n_entry * d, axis=-1), GLASS_IOR))
+              * (1 - fresnel_from_outside(np.sum(n_exit * d_inside, axis=-1), GLASS_IOR)))
+    value = np.where((b < 1)[:, None], passed[:, None] * np.square(TINT), 1.0)
+    return value, b
+
+
+def test_tinted_shadow_lights_its_whole_core():
+    """No dark ring: every floor point whose straight segment to the light
+    crosses the ball gets light (at least 99% of them: float32 may round
+    the outermost ones onto the silhouette), as much as the closed form
+    says."""
+    side = np.linspace(-1.05 * CORE, 1.05 * CORE, 81)
+    x, z = (a.ravel() for a in np.meshgrid(side, side))
+    measured = floor_transmittance(x, z)
+    expected, b = tinted_closed_form(x, z)
+    core = b < 1
+    assert core.sum() > 4000
+    assert np.mean(np.all(measured[core] > 0, axis=1)) >= 0.99
+    clear = np.abs(b - 1) > 1e-3
+    np.testing.assert_allclose(measured[clear], expected[clear], rtol=1e-5, atol=1e-5)
+
+
+def test_tinted_shadow_profile_falls_from_its_centre_to_its_edge():
+    """Along a radius of the core the light falls monotonically from the
+    closed form's centre value, (1 - R0)^2 T^2, to its smallest at the rim:
+    no minimum inside the shadow."""
+    radius = CORE * np.linspace(0, 0.999, 400)
+    profile = floor_transmittance(radius, np.zeros_like(radius))
+    r0 = ((GLASS_IOR - 1) / (GLASS_IOR + 1)) ** 2
+    np.testing.assert_allclose(profile[0], (1 - r0) ** 2 * np.square(TINT), rtol=1e-6)
+    np.testing.assert_allclose(profile, tinted_closed_form(radius, np.zeros_like(radius))[0],
+                               rtol=1e-5, atol=1e-5)
+    assert np.all(np.diff(profile, axis=0) <= 1e-6 * profile[:-1])
+    assert np.all(profile[:-1] > profile[-1])
 
 
 LIGHT_HEIGHT, BALL_HEIGHT, BALL_RADIUS, EYE_HEIGHT = 10.0, 5.0, 1.0, 20.0

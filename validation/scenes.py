@@ -23,6 +23,8 @@ SPEED = [ROOT / "scenes" / "cosc363.xml", ROOT / "scenes" / "cases" / "glass_sph
 SIZE = 32
 #: Seeds averaged by Whitted where area lights make it an estimate.
 SAMPLED_SEEDS = tuple(range(16))
+#: The "blend" case: this diffuse colour blended with a perfect mirror.
+BLEND_DIFFUSE, BLEND_WEIGHT = (0.7, 0.2, 0.2), 0.6
 
 
 @dataclass
@@ -102,22 +104,37 @@ def _mirror_chain():
         sensor=_camera(origin=(0.3, 2.0, 1.9), target=(-0.2, -0.2, -1.5), fov=50))
 
 
+def builtin_cylinder(to_world: mi.ScalarTransform4f, bsdf: dict | None = None) -> dict:
+    """Mitsuba's cylinder (axis z, open) and two disks, placed on the solid
+    that ``to_world`` makes of the capped cylinder's canonical one (axis y,
+    0 <= y <= 1, radius 1)."""
+    up = mi.ScalarTransform4f().rotate([1, 0, 0], -90)
+    parts = {"side": to_world @ up,
+             "bottom": to_world @ mi.ScalarTransform4f().rotate([1, 0, 0], 90),
+             "top": to_world @ mi.ScalarTransform4f().translate([0, 1, 0]) @ up}
+    return {name: {"type": "cylinder" if name == "side" else "disk", "to_world": placement,
+                   **({"bsdf": bsdf} if bsdf else {})}
+            for name, placement in parts.items()}
+
+
 def _cylinders():
     """The exact capped cylinder (Whitted) and Mitsuba's cylinder with two
     disks (path): the same solid."""
     material = _diffuse(0.7, 0.6, 0.2)
     transform = mi.ScalarTransform4f().translate([0, -0.8, 0]).scale([0.8, 1.4, 0.8])
-    up = mi.ScalarTransform4f().rotate([1, 0, 0], -90)
     sensor, light = _camera(origin=(2, 2.5, 4)), _point((2, 3, 3))
     capped = {"type": "capped_cylinder", "center": [0, -0.8, 0], "radius": 0.8,
               "height": 1.4, "segments": 10, "bsdf": material}
-    builtin = {
-        "side": {"type": "cylinder", "to_world": transform @ up, "bsdf": material},
-        "bottom": {"type": "disk", "bsdf": material,
-                   "to_world": transform @ mi.ScalarTransform4f().rotate([1, 0, 0], 90)},
-        "top": {"type": "disk", "bsdf": material,
-                "to_world": transform @ mi.ScalarTransform4f().translate([0, 1, 0]) @ up}}
-    return _scene(capped, light, sensor=sensor), _scene(light, sensor=sensor, **builtin)
+    return (_scene(capped, light, sensor=sensor),
+            _scene(light, sensor=sensor, **builtin_cylinder(transform, material)))
+
+
+def blend_scene(diffuse=BLEND_DIFFUSE) -> dict:
+    """A sphere of ``diffuse`` blended with a perfect mirror (weight
+    BLEND_WEIGHT) under a point light, before an emitting backdrop."""
+    blend = {"type": "blendbsdf", "weight": BLEND_WEIGHT, "bsdf_0": _diffuse(*diffuse),
+             "bsdf_1": {"type": "conductor"}}
+    return _scene(_sphere((0, 0, 0), 1, blend), _point((2, 3, 4)), _backdrop(z=-2.5))
 
 
 def _cornell_box():
@@ -137,8 +154,6 @@ def equivalence_cases() -> list[EquivalenceCase]:
     tartan = {"type": "phong", "exponent": 40.0,
               "diffuse_reflectance": {"type": "tartan", "frequency": 6.0}}
     plastic = {"type": "plastic", "diffuse_reflectance": _rgb(0.2, 0.3, 0.8)}
-    blend = {"type": "blendbsdf", "weight": 0.6, "bsdf_0": _diffuse(0.7, 0.2, 0.2),
-             "bsdf_1": {"type": "conductor"}}
     lamp = {"type": "sphere", "center": [0.5, 1.0, 0.5], "radius": 0.2,
             "emitter": {"type": "area", "radiance": _rgb(15, 15, 15)}}
     capped, builtin = _cylinders()
@@ -158,9 +173,8 @@ def equivalence_cases() -> list[EquivalenceCase]:
         EquivalenceCase("plastic", "Fresnel-weighted coating over diffuse",
                         _scene(_sphere((0, 0, 0), 1, plastic), _point((2, 3, 4)),
                                _point((-3, 1, 4), 8.0))),
-        EquivalenceCase("blend", "blendbsdf of diffuse and conductor", _scene(
-            _sphere((0, 0, 0), 1, blend), _point((2, 3, 4)), _backdrop(z=-2.5)),
-            seeds=SAMPLED_SEEDS),
+        EquivalenceCase("blend", "blendbsdf of diffuse and conductor", blend_scene(),
+                        seeds=SAMPLED_SEEDS),
         EquivalenceCase("capped cylinder", "exact capped cylinder (Whitted) against Mitsuba's "
                         "cylinder + 2 disks (path)", capped, builtin),
         EquivalenceCase("spot + directional", "spot cone and falloff, directional light",

@@ -44,9 +44,10 @@ class AnalyticRefiner(ReadsScene):
     """``intersect(ray, active)``: Mitsuba's intersection, with hits on
     analytic proxies replaced by the exact surface."""
 
-    def __init__(self, scene_ref: SceneRef, shapes: list):
+    def __init__(self, scene_ref: SceneRef, shapes: list, scale: float = None):
         self.scene_ref = scene_ref
-        self.scale = scene_scale(scene_ref.get())
+        #: Absolute term of the offsets past a missed proxy (``offsets``).
+        self.scale = scene_scale(scene_ref.get()) if scale is None else scale
         self.shapes = shapes
         self.F64 = dr.float64_array_t(mi.Float)
         self.load_tables()

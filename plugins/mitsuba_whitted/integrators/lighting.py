@@ -53,7 +53,7 @@ class ShadowTester(ReadsScene):
     def __init__(self, scene_ref: SceneRef, needs: SceneNeeds, shadows: str, intersect):
         self.scene_ref = scene_ref
         self.needs = needs
-        self.seed_mode = shadows == "seed"
+        self.tinted = shadows != "physical"
         self.intersect = intersect
         self.opaque = not needs.transmissive and not needs.analytic_shapes
 
@@ -116,17 +116,17 @@ class ShadowTester(ReadsScene):
 
         "physical": only surfaces that transmit without bending the ray
         (index-matched dielectrics, thin dielectrics, null and masks);
-        "seed": refracting surfaces too, tinted by their transmission, like
-        the report's lightened shadows behind glass.
+        "tinted" (or its first name, "seed"): refracting surfaces too, as
+        in the report's lightened shadows behind glass.
         """
         passed = mi.Color3f(0)
         for component in self.needs.transmission_components:
             if not has_delta_lobe(bsdf, component, mi.BSDFFlags.DeltaTransmission):
                 continue
-            ctx = mi.BSDFContext(mi.TransportMode.Radiance,
+            ctx = mi.BSDFContext(mi.TransportMode.Importance,
                                  mi.BSDFFlags.DeltaTransmission, component)
             weight, ok = self._transmission(bsdf, ctx, si)
-            if not self.seed_mode:
+            if not self.tinted:
                 ok &= self._bends_no_ray(bsdf, ctx, si)
             passed += dr.select(ok, weight, mi.Color3f(0))
         if mi.has_flag(bsdf.flags(), mi.BSDFFlags.Null):
@@ -135,7 +135,20 @@ class ShadowTester(ReadsScene):
 
     @staticmethod
     def _transmission(bsdf, ctx, si):
-        bs, weight = bsdf.sample(ctx, si, 0.5, mi.Point2f(0.5))
+        """The transmitted part where the straight shadow ray meets the
+        surface, as if it arrived there from outside: 1 - F at that angle
+        times the surface's transmittance.
+
+        The shadow ray is not bent, so it leaves a closed object at the
+        angle at which it entered; seen from inside, that angle can lie past
+        the critical one, and total internal reflection there would cut a
+        dark ring into the shadow, which no ray entering a sphere can cause.
+        Importance transport leaves out the 1/eta^2 scaling of radiance
+        entering a denser medium (and the eta^2 of leaving it), which cancel
+        over the two crossings of a closed object."""
+        outside = mi.SurfaceInteraction3f(si)
+        outside.wi = mi.Vector3f(si.wi.x, si.wi.y, dr.abs(si.wi.z))
+        bs, weight = bsdf.sample(ctx, outside, 0.5, mi.Point2f(0.5))
         ok = (bs.pdf > 0) & mi.has_flag(bs.sampled_type, mi.BSDFFlags.DeltaTransmission)
         return mi.Color3f(weight), ok
 

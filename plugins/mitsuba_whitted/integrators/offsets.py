@@ -7,8 +7,14 @@ scene a thousandth of a unit across gets offsets of a tenth of its objects'
 size, and refracted rays visibly wander. Here that absolute term is
 ``min(1, scene size)``: scenes of unit size and larger get exactly
 Mitsuba's offsets (so Whitted and Mitsuba's own integrators leave surfaces
-identically, which keeps silhouettes seen in mirrors pixel-identical), and
-smaller scenes get offsets that shrink with them.
+identically and trace the very same rays, which the equivalence tests need:
+a hit a hair's breadth elsewhere moves a pixel near a silhouette or a
+terminator), and smaller scenes get offsets that shrink with them.
+
+The price is that offsets are not a fixed share of a scene larger than a
+unit: such a scene and its copy scaled by 1000 trace slightly different
+rays, and a ray that bounces many times inside glass may end on the other
+side of an edge in one of them (``validation/stability.py``).
 """
 
 from __future__ import annotations

@@ -20,7 +20,8 @@ from .scene_ref import SceneRef, identity
 PLUGIN_NAME = "whitted"
 
 AA_MODES = ("none", "grid", "adaptive", "contrast")
-SHADOW_MODES = ("physical", "seed")
+#: ``"seed"``, the mode's first name, still names ``"tinted"``.
+SHADOW_MODES = ("physical", "tinted", "seed")
 #: ``max_depth = -1`` means "until pruned"; this cap keeps two facing
 #: perfect mirrors from looping forever.
 UNBOUNDED_DEPTH = 256
@@ -53,9 +54,20 @@ class WhittedIntegrator(mi.SamplingIntegrator):
        - |string|
        - ``"physical"``: shadow rays pass only surfaces that transmit
          without bending light (index-matched or thin dielectrics, null,
-         mask), tinted by their transmittance, as Mitsuba's path tracer
-         sees them. ``"seed"``: refracting surfaces pass tinted light too,
-         the report's lightened shadows behind glass. (Default: physical)
+         mask), tinted by their transmittance; refracting surfaces block
+         them, as they block Mitsuba's (``volpath`` passes null, mask and
+         thin surfaces too; ``path`` passes none). ``"tinted"`` (also
+         ``"seed"``): refracting surfaces pass light too, the report's
+         lightened shadows behind glass. The shadow ray goes on straight;
+         at each surface it crosses, it passes the part the surface
+         transmits at the angle where the ray meets it, as if arriving from
+         outside (1 - Fresnel reflectance, times the surface's
+         transmittance), so both crossings of a closed object count and
+         there is no total internal reflection on the way out.
+         Under a glass sphere of index n and transmittance T, the centre of
+         the shadow receives (1 - ((n - 1) / (n + 1))\ :sup:`2`)\ :sup:`2`
+         T\ :sup:`2` of the light it would receive unshadowed.
+         (Default: physical)
      * - emitter_samples
        - |int|
        - Shadow rays per hit for each area or environment emitter, placed
@@ -242,11 +254,13 @@ class WhittedIntegrator(mi.SamplingIntegrator):
                     needs: SceneNeeds = None):
         """A ray-tree tracer specialised to what ``scene`` contains: the
         stack tracer where its stack is deep enough, else (or when asked,
-        e.g. to capture each generation's rays) the wavefront tracer."""
+        e.g. to capture each generation's rays) the wavefront tracer.
+        ``needs`` replaces ``analyse(scene)``, e.g. to trace with another
+        absolute offset length (its ``scale``)."""
         check_placements(scene)
         needs = needs or analyse(scene)
         scene_ref = SceneRef(scene)
-        refiner = (AnalyticRefiner(scene_ref, needs.analytic_shapes)
+        refiner = (AnalyticRefiner(scene_ref, needs.analytic_shapes, needs.scale)
                    if needs.analytic_shapes else None)
         intersect = refiner.intersect if refiner else _plain_intersect(scene_ref)
         shadows = ShadowTester(scene_ref, needs, self.shadows, intersect)
@@ -401,9 +415,11 @@ class WhittedIntegrator(mi.SamplingIntegrator):
             self._last.noted.add(subject)
             _warn(message)
 
-    def trace_rays(self, scene: mi.Scene, ray: mi.Ray3f, seed: int = 0):
-        """Whitted radiance and alpha along arbitrary rays."""
-        tracer = self.make_tracer(scene, seed)
+    def trace_rays(self, scene: mi.Scene, ray: mi.Ray3f, seed: int = 0,
+                   needs: SceneNeeds = None):
+        """Whitted radiance and alpha along arbitrary rays (``needs``: see
+        ``make_tracer``)."""
+        tracer = self.make_tracer(scene, seed, needs=needs)
         keys = dr.arange(mi.UInt32, dr.width(ray.o))
         return tracer.trace(RayBatch(mi.Point3f(ray.o), mi.Vector3f(ray.d),
                                      mi.Color3f(1), keys))
