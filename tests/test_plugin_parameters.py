@@ -308,3 +308,80 @@ def test_a_nested_texture_rebuilds_itself_from_the_restored_values():
         params.update()
     for now, then in zip(evaluations(), before):
         np.testing.assert_array_equal(now, then)
+
+
+#: The integrator's settings: (parameter, a bad value for an update, a bad
+#: property to load (None where an update is the only way in), the XML).
+INTEGRATOR_CASES = [
+    ("max_depth", -2, "deep", '<string name="max_depth" value="deep"/>'),
+    ("max_depth", -5, 2.5, '<float name="max_depth" value="2.5"/>'),
+    ("emitter_samples", 0, 0, '<integer name="emitter_samples" value="0"/>'),
+    ("min_throughput", NAN, NAN, '<float name="min_throughput" value="nan"/>'),
+    ("min_throughput", -1.0, INF, '<float name="min_throughput" value="inf"/>'),
+    ("aa_samples", 0, 0, '<integer name="aa_samples" value="0"/>'),
+    ("aa_samples", 9, 9, '<string name="aa" value="grid"/><integer name="aa_samples" value="9"/>'),
+    ("aa_threshold", -0.1, -0.1, '<float name="aa_threshold" value="-0.1"/>'),
+    ("aa_threshold", INF, "0.5", '<vector name="aa_threshold" x="1" y="2" z="3"/>'),
+    ("aa_max_depth", 17, 17, '<integer name="aa_max_depth" value="17"/>'),
+    ("aa_budget", 1.0, 1.0, '<float name="aa_budget" value="1"/>'),
+    ("aa_budget", NAN, "many", '<string name="aa_budget" value="many"/>'),
+    ("wavefront_size", 100, 100, '<integer name="wavefront_size" value="100"/>'),
+    ("ambient", [-1.0, 0.0, 0.0], rgb(-1, 0, 0), '<rgb name="ambient" value="-1, 0, 0"/>'),
+    ("ambient", [NAN, 0.0, 0.0], "grey", '<string name="ambient" value="grey"/>'),
+    ("hide_emitters", None, "yes", '<string name="hide_emitters" value="yes"/>'),
+]
+
+
+def integrator_values(params) -> dict:
+    return {key: np.array(params[key]).tolist() for key in params.keys()
+            if key not in ("aa", "shadows")}
+
+
+def integrator_scene(**settings):
+    """A mirror ball before a lit wall and a lamp, rendered with a grid: a
+    change of any setting changes the image."""
+    lamp = {"type": "sphere", "center": [0, 1.5, 1], "radius": 0.2,
+            "emitter": {"type": "area", "radiance": rgb(5, 5, 5)}}
+    return mi.load_dict(scene(floor(), sphere((0, 0, 0), 0.7, {"type": "conductor"}), lamp,
+                              point_light((2, 3, 4), 30.0), sensor=camera(size=16),
+                              whitted=integrator(**{"aa": "grid", **settings})))
+
+
+@pytest.mark.parametrize("parameter, bad, load_bad, xml", INTEGRATOR_CASES,
+                         ids=[f"{case[0]}-{case[2]}" for case in INTEGRATOR_CASES])
+def test_integrator_settings_are_checked_and_a_refused_update_changes_nothing(
+        parameter, bad, load_bad, xml):
+    with pytest.raises(RuntimeError) as refused:
+        integrator_scene(**{parameter: load_bad})
+    assert_one_sentence(str(refused.value), "whitted", parameter, loading=True)
+    with pytest.raises(RuntimeError) as refused:
+        mi.load_string(XML_SCENE.replace('<integrator type="whitted"/>',
+                                         f'<integrator type="whitted">{xml}</integrator>')
+                       .format(""))
+    assert_one_sentence(str(refused.value), "whitted", parameter, loading=True)
+    if bad is None:
+        return
+
+    loaded = integrator_scene()
+    params = mi.traverse(loaded.integrator())
+    values_before = integrator_values(params)
+    image_before = render(loaded)
+    params[parameter] = bad
+    with pytest.raises(ParameterError) as refused:
+        params.update()
+    assert_one_sentence(str(refused.value), "whitted", parameter, loading=False)
+    assert integrator_values(params) == values_before
+    np.testing.assert_array_equal(render(loaded), image_before)
+
+    params["max_depth"] = 2
+    params.update()
+    updated = render(loaded)
+    assert not np.array_equal(updated, image_before)
+    np.testing.assert_array_equal(updated, render(integrator_scene(max_depth=2)))
+
+
+def test_integrator_modes_are_shown_but_not_updated():
+    params = mi.traverse(integrator_scene().integrator())
+    assert params["aa"] == "grid" and params["shadows"] == "physical"
+    with pytest.raises(Exception, match="aa is a Read-Only parameter"):
+        params["aa"] = "none"

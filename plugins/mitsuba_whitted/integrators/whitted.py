@@ -6,6 +6,7 @@ import numpy as np
 
 from ..jit import index_range
 from ..errors import ParameterError, VariantError, check, check_choice
+from ..parameters import LastValid, checked_numbers, describe
 from . import antialias, render_plan
 from .render_plan import Demand, RenderPlan, plan_render
 from .scene_checks import check_emitters, check_placements
@@ -27,6 +28,54 @@ SHADOW_MODES = ("physical", "tinted", "seed")
 UNBOUNDED_DEPTH = 256
 #: Deeper adaptive levels would place samples closer than float32 resolves.
 AA_DEPTH_LIMIT = 16
+
+
+def _given(props: mi.Properties, name: str, default):
+    """The property as given, of whatever type (``Properties.get`` with a
+    default refuses another type than the default's with a message of its
+    own), or ``default``."""
+    return props.get(name) if name in props else default
+
+
+def _whole(default: int):
+    def read(props: mi.Properties, name: str) -> int:
+        value = checked_numbers(_given(props, name, default), PLUGIN_NAME, name)[0]
+        check(value == int(value), PLUGIN_NAME, name, f"must be a whole number (got {value:g})")
+        return int(value)
+    return read
+
+
+def _real(default: float):
+    def read(props: mi.Properties, name: str) -> float:
+        return checked_numbers(_given(props, name, default), PLUGIN_NAME, name)[0]
+    return read
+
+
+def _flag(props: mi.Properties, name: str) -> bool:
+    value = _given(props, name, False)
+    check(isinstance(value, bool), PLUGIN_NAME, name,
+          f"must be true or false (got {describe(value)})")
+    return value
+
+
+def _colour(props: mi.Properties, name: str) -> list:
+    return checked_numbers(_given(props, name, 0.0), PLUGIN_NAME, name, size=3, broadcast=True)
+
+
+#: The numeric settings: how each is read from the scene's properties (with
+#: its default). ``mi.traverse`` exposes them as one-entry arrays.
+SETTINGS = {
+    "max_depth": _whole(10),
+    "ambient": _colour,
+    "emitter_samples": _whole(16),
+    "min_throughput": _real(1e-4),
+    "hide_emitters": _flag,
+    "aa_samples": _whole(2),
+    "aa_threshold": _real(0.1),
+    "aa_max_depth": _whole(3),
+    "aa_budget": _real(64.0),
+    "wavefront_size": _whole(1 << 18),
+}
 
 
 class WhittedIntegrator(mi.SamplingIntegrator):
@@ -173,22 +222,17 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     """
 
     def __init__(self, props: mi.Properties):
+        # Read first: Mitsuba's base class reads ``hide_emitters`` too, and
+        # refuses a wrong type with a message of its own.
+        settings = {name: read(props, name) for name, read in SETTINGS.items()}
         super().__init__(props)
         _require_supported_variant()
-        self.max_depth = props.get("max_depth", 10)
-        self.ambient = mi.ScalarColor3f(props.get("ambient", mi.ScalarColor3f(0)))
         self.shadows = check_choice(props.get("shadows", "physical"), SHADOW_MODES,
                                     PLUGIN_NAME, "shadows")
-        self.emitter_samples = props.get("emitter_samples", 16)
-        self.min_throughput = props.get("min_throughput", 1e-4)
-        self.hide_emitters = props.get("hide_emitters", False)
         self.aa = check_choice(props.get("aa", "none"), AA_MODES, PLUGIN_NAME, "aa")
-        self.aa_samples = props.get("aa_samples", 2)
-        self.aa_threshold = props.get("aa_threshold", 0.1)
-        self.aa_max_depth = props.get("aa_max_depth", 3)
-        self.aa_budget = props.get("aa_budget", 64.0)
-        self.wavefront_size = props.get("wavefront_size", 1 << 18)
-        self._validate()
+        self._exposed = _Exposed(settings)
+        self._last_valid = LastValid(PLUGIN_NAME, nested=False)
+        self.parameters_changed()
         #: Called as ``progress(done, expected, message)`` while rendering.
         self.progress = None
         #: Set to keep every ray batch of the next render in ``last_rays``.
@@ -222,31 +266,32 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     def last_rays(self, value):
         self._last.rays = value
 
-    def _validate(self):
-        check(self.max_depth >= -1, PLUGIN_NAME, "max_depth",
-              f"must be -1 (unbounded) or >= 0 (got {self.max_depth})")
-        check(self.emitter_samples >= 1, PLUGIN_NAME, "emitter_samples",
-              f"must be >= 1 (got {self.emitter_samples})")
-        check(self.min_throughput >= 0, PLUGIN_NAME, "min_throughput",
-              f"must be >= 0 (got {self.min_throughput})")
-        check(self.aa_samples >= 1, PLUGIN_NAME, "aa_samples",
-              f"must be >= 1 (got {self.aa_samples})")
-        check(self.aa_threshold >= 0, PLUGIN_NAME, "aa_threshold",
-              f"must be >= 0 (got {self.aa_threshold})")
-        check(0 <= self.aa_max_depth <= AA_DEPTH_LIMIT, PLUGIN_NAME, "aa_max_depth",
-              f"must be between 0 and {AA_DEPTH_LIMIT} (got {self.aa_max_depth})")
-        check(self.aa_budget >= 4, PLUGIN_NAME, "aa_budget",
-              f"must be >= 4 samples per pixel (got {self.aa_budget})")
+    def _validate(self, v: dict) -> None:
+        """Refuse settings ``v`` (by name) that make no sense together."""
+        check(v["max_depth"] >= -1, PLUGIN_NAME, "max_depth",
+              f"must be -1 (unbounded) or >= 0 (got {v['max_depth']})")
+        check(v["emitter_samples"] >= 1, PLUGIN_NAME, "emitter_samples",
+              f"must be >= 1 (got {v['emitter_samples']})")
+        check(v["min_throughput"] >= 0, PLUGIN_NAME, "min_throughput",
+              f"must be >= 0 (got {v['min_throughput']:g})")
+        check(v["aa_samples"] >= 1, PLUGIN_NAME, "aa_samples",
+              f"must be >= 1 (got {v['aa_samples']})")
+        check(v["aa_threshold"] >= 0, PLUGIN_NAME, "aa_threshold",
+              f"must be >= 0 (got {v['aa_threshold']:g})")
+        check(0 <= v["aa_max_depth"] <= AA_DEPTH_LIMIT, PLUGIN_NAME, "aa_max_depth",
+              f"must be between 0 and {AA_DEPTH_LIMIT} (got {v['aa_max_depth']})")
+        check(v["aa_budget"] >= 4, PLUGIN_NAME, "aa_budget",
+              f"must be >= 4 samples per pixel (got {v['aa_budget']:g})")
         if self.aa == "grid":
-            samples = self.aa_samples * self.aa_samples
-            check(samples <= self.aa_budget, PLUGIN_NAME, "aa_samples",
-                  f"asks for {samples} samples per pixel ({self.aa_samples} x "
-                  f"{self.aa_samples}), more than 'aa_budget' allows ({self.aa_budget:g}); "
+            samples = v["aa_samples"] ** 2
+            check(samples <= v["aa_budget"], PLUGIN_NAME, "aa_samples",
+                  f"asks for {samples} samples per pixel ({v['aa_samples']} x "
+                  f"{v['aa_samples']}), more than 'aa_budget' allows ({v['aa_budget']:g}); "
                   "lower 'aa_samples' or raise 'aa_budget'")
-        check(self.wavefront_size >= 1024, PLUGIN_NAME, "wavefront_size",
-              f"must be >= 1024 (got {self.wavefront_size})")
-        check(all(c >= 0 for c in self.ambient), PLUGIN_NAME, "ambient",
-              f"must not be negative (got {list(self.ambient)})")
+        check(v["wavefront_size"] >= 1024, PLUGIN_NAME, "wavefront_size",
+              f"must be >= 1024 (got {v['wavefront_size']})")
+        check(all(c >= 0 for c in v["ambient"]), PLUGIN_NAME, "ambient",
+              f"must not be negative (got {list(v['ambient'])})")
 
     # ------------------------------------------------------------------ setup
 
@@ -435,17 +480,23 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         return []
 
     def traverse(self, callback):
+        """The numeric settings, which an update may change (the integrator
+        then traces with new kernels), and ``aa`` and ``shadows``, which it
+        may not: they choose what kind of render this is."""
         flags = mi.ParamFlags.NonDifferentiable
-        for name in ("max_depth", "shadows", "emitter_samples", "min_throughput",
-                     "hide_emitters", "aa", "aa_samples", "aa_threshold",
-                     "aa_max_depth", "aa_budget", "wavefront_size"):
-            callback.put(name, getattr(self, name), flags)
-        callback.put("ambient", self.ambient, flags)
+        for name, value in self._exposed.arrays.items():
+            callback.put(name, value, flags)
+        for name in ("aa", "shadows"):
+            callback.put(name, getattr(self, name), flags | mi.ParamFlags.ReadOnly)
 
-    def parameters_changed(self, keys):
-        check_choice(self.aa, AA_MODES, PLUGIN_NAME, "aa")
-        check_choice(self.shadows, SHADOW_MODES, PLUGIN_NAME, "shadows")
-        self._validate()
+    def parameters_changed(self, keys=()):
+        """Take the settings from the traversed arrays, or refuse them all
+        and leave the arrays as they were."""
+        with self._last_valid.updating(self):
+            values = self._exposed.values()
+            self._validate(values)
+            for name, value in values.items():
+                setattr(self, name, value)
 
     def to_string(self):
         return (f"WhittedIntegrator[max_depth={self.max_depth}, shadows={self.shadows}, "
@@ -491,6 +542,38 @@ class CameraShader:
     def _report(self, done: int, total: int) -> None:
         if self.progress is not None:
             self.progress(done, total, self.label)
+
+
+class _Exposed:
+    """The settings as the one-entry arrays ``mi.traverse`` hands out, which
+    an update writes into. Kept out of the integrator's ``__dict__``, which
+    Dr.Jit traverses for the inputs of every frozen launch."""
+
+    __slots__ = ("arrays",)
+
+    def __init__(self, values: dict):
+        self.arrays = {name: _as_array(value) for name, value in values.items()}
+
+    def values(self) -> dict:
+        """The settings as Python values (``ambient`` an RGB colour)."""
+        return {name: _as_value(array) for name, array in self.arrays.items()}
+
+
+def _as_array(value):
+    if isinstance(value, bool):
+        return mi.Bool(value)
+    if isinstance(value, int):
+        return mi.Int32(value)
+    if isinstance(value, float):
+        return mi.Float(value)
+    return mi.Color3f(*value)
+
+
+def _as_value(array):
+    if isinstance(array, mi.Color3f):
+        return mi.ScalarColor3f(array.numpy().ravel().tolist())
+    convert = {mi.Bool: bool, mi.Int32: int, mi.Float: float}[type(array)]
+    return convert(array.numpy().ravel()[0])
 
 
 class _LastRender:
