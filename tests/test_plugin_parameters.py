@@ -385,3 +385,10 @@ def test_integrator_modes_are_shown_but_not_updated():
     assert params["aa"] == "grid" and params["shadows"] == "physical"
     with pytest.raises(Exception, match="aa is a Read-Only parameter"):
         params["aa"] = "none"
+
+
+def test_integrator_properties_load_an_integrator_that_renders_alike():
+    loaded = integrator_scene(max_depth=3, ambient=0.1, aa_samples=3, aa_threshold=0.2)
+    twin = mi.load_dict({"type": "whitted", **loaded.integrator().properties()})
+    np.testing.assert_array_equal(np.array(mi.render(loaded, integrator=twin)), render(loaded))
+    assert twin.properties() == loaded.integrator().properties()

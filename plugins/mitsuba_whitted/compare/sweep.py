@@ -21,10 +21,6 @@ from ..jit import timed
 from .metrics import flip_error, rel_mse, rmse
 from .reference import Reference, path_settings, rgb
 
-#: The Whitted parameters a scene's own integrator passes on to the sweep.
-WHITTED_PARAMETERS = ("max_depth", "shadows", "emitter_samples", "min_throughput",
-                      "hide_emitters", "aa", "aa_samples", "aa_threshold", "aa_max_depth")
-
 
 @dataclass
 class SweepPoint:
@@ -64,15 +60,11 @@ def timed_render(scene: mi.Scene, integrator, repeats: int = 3, **render_args):
 
 
 def scene_whitted_settings(scene: mi.Scene) -> dict:
-    """The scene's own ``whitted`` settings (empty for other integrators),
-    read through ``mi.traverse``."""
+    """The scene's own ``whitted`` settings (empty for other integrators)."""
     integrator = scene.integrator()
-    if integrator is None or not hasattr(integrator, "trace_rays"):
+    if integrator is None or not hasattr(integrator, "properties"):
         return {}
-    params = mi.traverse(integrator)
-    settings = {name: params[name] for name in WHITTED_PARAMETERS}
-    settings["ambient"] = {"type": "rgb", "value": list(params["ambient"])}
-    return settings
+    return integrator.properties()
 
 
 #: Contrast refinement as the sweeps run it: edges of 2% contrast and more

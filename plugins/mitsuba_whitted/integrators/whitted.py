@@ -489,6 +489,14 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         for name in ("aa", "shadows"):
             callback.put(name, getattr(self, name), flags | mi.ParamFlags.ReadOnly)
 
+    def properties(self) -> dict:
+        """The settings as the properties of a ``whitted`` that renders
+        like this one (for ``mi.load_dict``, without its ``type``)."""
+        properties = {name: getattr(self, name) for name in SETTINGS}
+        properties["ambient"] = {"type": "rgb", "value": list(self.ambient)}
+        properties.update(aa=self.aa, shadows=self.shadows)
+        return properties
+
     def parameters_changed(self, keys=()):
         """Take the settings from the traversed arrays, or refuse them all
         and leave the arrays as they were."""
