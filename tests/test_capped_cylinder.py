@@ -645,3 +645,14 @@ def test_bad_input_names_the_parameter(parameter, value):
         value = mi.ScalarTransform4f().scale([1, 0, 1])
     with pytest.raises(RuntimeError, match=f"capped_cylinder: parameter '{parameter}'"):
         mi.load_dict({"type": "capped_cylinder", parameter: value})
+
+
+def test_the_capped_cylinder_is_marked_analytic_and_built_in_shapes_are_not():
+    from mitsuba_whitted.shapes.analytic import analytic, is_analytic
+
+    scene = mi.load_dict({"type": "scene", "cyl": {"type": "capped_cylinder"},
+                          "ball": {"type": "sphere"}})
+    marked = {shape.id(): is_analytic(shape) for shape in scene.shapes()}
+    assert marked == {"cyl": True, "ball": False}
+    with pytest.raises(TypeError, match="lacks canonical_to_world_matrix"):
+        analytic(type("Unplaced", (), {"world_to_canonical_matrix": lambda self: None}))

@@ -52,7 +52,7 @@ def test_scenes_load_with_the_same_registry_ids_in_every_process():
 
 def test_a_second_process_compiles_nothing(tmp_path):
     """The kernel cache helps only if every kernel comes out the same in each
-    process. The stack tracer's kernel makes the camera rays itself, so a
+    process. The depth-first tracer's kernel makes the camera rays itself, so a
     sensor value that differs per process baked into it (or registry ids
     handed out in another order, or a mesh buffer whose alignment depends on
     where NumPy allocated it) would compile it anew on every run."""

@@ -19,7 +19,7 @@ from mitsuba_whitted.integrators.shading import MAX_TREE_RAYS
 from scenes import camera, integrator, rgb, scene, sphere
 
 LE, R = 0.25, 0.99
-TRACERS = {"stack tracer": False, "wavefront tracer": True}
+TRACERS = {"depth-first tracer": False, "wavefront tracer": True}
 
 #: A wall's placement: the axis it faces along and its side; its front
 #: (the rectangle's +z) faces the inside of the box.

@@ -13,7 +13,7 @@ import mitsuba_whitted
 from conftest import assert_finite
 from mitsuba_whitted.integrators.scene_needs import analyse
 from mitsuba_whitted.integrators.scene_ref import SceneRef
-from mitsuba_whitted.integrators.stacktree import LAUNCH_FACTOR
+from mitsuba_whitted.integrators.depth_first import LAUNCH_FACTOR
 from scenes import (camera, diffuse, floor, glass_scene, integrator, point_light, rgb, scene,
                     sphere)
 
@@ -198,7 +198,7 @@ LIGHT_HEIGHT, BALL_HEIGHT, BALL_RADIUS, EYE_HEIGHT = 10.0, 5.0, 1.0, 20.0
 #: shadow (which the closed form checks).
 VIEW, MARCH_SIZE = 2.5, 34
 #: Mitsuba 3.9.1's orthographic sensor does not expose its JIT members to
-#: ``dr.freeze``: the stack tracer's camera kernel fails to record (after
+#: ``dr.freeze``: the depth-first tracer's camera kernel fails to record (after
 #: running once) and the tracer makes the camera rays outside it instead.
 PROJECTIONS = {"perspective": "camera kernel", "orthographic": "camera kernel not frozen"}
 
@@ -256,7 +256,7 @@ def render_march_scene(projection, capture):
 
 
 @pytest.mark.parametrize("projection", PROJECTIONS, ids=list(PROJECTIONS.values()))
-@pytest.mark.parametrize("capture", [False, True], ids=["stack tracer", "wavefront tracer"])
+@pytest.mark.parametrize("capture", [False, True], ids=["depth-first tracer", "wavefront tracer"])
 def test_marched_shadow_rays_are_counted(projection, capture):
     """Each tracer counts every shadow ray once, and its marching queries,
     also when a kernel cannot be frozen (its failed recording has run it
@@ -295,7 +295,7 @@ def test_determinism_bit_for_bit():
 
 
 @pytest.mark.parametrize("max_depth, launch_factor", [(10, LAUNCH_FACTOR), (-1, 1)],
-                         ids=["stack tracer", "wavefront tracer"])
+                         ids=["depth-first tracer", "wavefront tracer"])
 def test_wavefront_size_is_not_an_approximation(max_depth, launch_factor):
     """Splitting camera samples (and, in the wavefront tracer, generations)
     into parts changes which operations Dr.Jit fuses into one kernel, and
@@ -305,7 +305,7 @@ def test_wavefront_size_is_not_an_approximation(max_depth, launch_factor):
     small, whitted = render(glass_scene(), aa="grid", aa_samples=2, wavefront_size=1024,
                             max_depth=max_depth)
     # 48 x 48 pixels x 4 samples, in parts of 1024 camera samples (8 times
-    # as many in the stack tracer): at least 9 launches (2).
+    # as many in the depth-first tracer): at least 9 launches (2).
     assert whitted.last_stats["batches"] >= math.ceil(48 * 48 * 4 / (1024 * launch_factor)) >= 2
     np.testing.assert_allclose(small, large, rtol=1e-3, atol=1e-5)
 
@@ -408,7 +408,7 @@ def test_scalar_variant_is_refused_clearly():
     assert isinstance(mi.load_dict(integrator()), mi.SamplingIntegrator)
 
 
-@pytest.mark.parametrize("max_depth", [6, -1], ids=["stack tracer", "wavefront tracer"])
+@pytest.mark.parametrize("max_depth", [6, -1], ids=["depth-first tracer", "wavefront tracer"])
 def test_falls_back_when_a_frozen_replay_goes_wrong(monkeypatch, max_depth):
     """If Dr.Jit's frozen replay ever returns arrays of a wrong width, the
     tracer warns and traces anew: same image, no crash. (Both tracers
@@ -517,7 +517,7 @@ def test_a_reused_integrator_follows_a_bsdf_whose_lobes_change():
     np.testing.assert_array_equal(switched, fresh)
 
 
-@pytest.mark.parametrize("max_depth", [10, -1], ids=["stack tracer", "wavefront tracer"])
+@pytest.mark.parametrize("max_depth", [10, -1], ids=["depth-first tracer", "wavefront tracer"])
 def test_a_rendered_scene_is_freed_when_dropped(max_depth):
     """The integrator keeps its tracer for the next render, and the scene
     keeps the integrator: a tracer holding the scene, or its frozen kernels

@@ -223,18 +223,29 @@ def intersect_canonical(o, d, t_min, t_max, active=True) -> CanonicalHit:
     )
 
 
+def transform_point(m, p) -> list:
+    """The rows of the affine 4x4 matrix ``m`` (indexed ``m[i][j]``: a
+    ``mi.Matrix4f``/``mi.Matrix4d``, or rows of per-lane arrays) applied to
+    the point ``p``: three coordinates."""
+    return [m[i][0] * p.x + m[i][1] * p.y + m[i][2] * p.z + m[i][3] for i in range(3)]
+
+
+def transform_vector(m, v) -> list:
+    """The linear part of ``m`` applied to the vector ``v``."""
+    return [m[i][0] * v.x + m[i][1] * v.y + m[i][2] * v.z for i in range(3)]
+
+
 def world_ray_to_canonical(world_to_canonical, o, d):
-    """Map a world ray with the (per-lane or uniform) 4x4 affine matrix
-    ``world_to_canonical`` (``mi.Matrix4f`` or ``mi.Matrix4d``): points get
-    the translation, the direction only the linear part and keeps its length
-    change, so ``t`` is preserved."""
-    m = world_to_canonical
-    linear = [[m[i][j] for j in range(3)] for i in range(3)]
-    d_c = [linear[i][0] * d.x + linear[i][1] * d.y + linear[i][2] * d.z
-           for i in range(3)]
-    o_c = [linear[i][0] * o.x + linear[i][1] * o.y + linear[i][2] * o.z + m[i][3]
-           for i in range(3)]
-    return type(o)(*o_c), type(d)(*d_c)
+    """Map a world ray with the (per-lane or uniform) affine matrix
+    ``world_to_canonical``: points get the translation, the direction only
+    the linear part and keeps its length change, so ``t`` is preserved."""
+    return (type(o)(*transform_point(world_to_canonical, o)),
+            type(d)(*transform_vector(world_to_canonical, d)))
+
+
+def canonical_point_to_world(canonical_to_world, p) -> mi.Point3f:
+    """World position of a canonical point, rounded to float32."""
+    return mi.Point3f(*[mi.Float(c) for c in transform_point(canonical_to_world, p)])
 
 
 def canonical_normal_to_world(world_to_canonical, n) -> mi.Normal3f:

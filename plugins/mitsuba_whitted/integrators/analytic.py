@@ -21,7 +21,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..geometry.cylinder import intersect_canonical
+from ..geometry.cylinder import (canonical_normal_to_world, canonical_point_to_world,
+                                 intersect_canonical, world_ray_to_canonical)
 from ..jit import device_array
 from .offsets import scene_scale, spawn_ray
 from .scene_ref import ReadsScene, SceneRef
@@ -109,19 +110,12 @@ class AnalyticRefiner(ReadsScene):
     def _exact(self, si, ray, active):
         """Exact hit of ``ray`` with the analytic shape ``si`` lies on."""
         index = dr.reinterpret_array(mi.UInt32, si.shape)
-        m = self._matrix_rows(self.to_canonical, index, active)
-        o = [self.F64(c) for c in (ray.o.x, ray.o.y, ray.o.z)]
-        d = [self.F64(c) for c in (ray.d.x, ray.d.y, ray.d.z)]
-        o_c = [m[i][0] * o[0] + m[i][1] * o[1] + m[i][2] * o[2] + m[i][3] for i in range(3)]
-        d_c = [m[i][0] * d[0] + m[i][1] * d[1] + m[i][2] * d[2] for i in range(3)]
-        exact = intersect_canonical(_Triple(o_c), _Triple(d_c), mi.Float(0.0), ray.maxt, active)
-        w = self._matrix_rows(self.to_world, index, active)
-        p = [w[i][0] * exact.p.x + w[i][1] * exact.p.y + w[i][2] * exact.p.z + w[i][3]
-             for i in range(3)]
-        # Normals take the inverse transpose: n_world = W^T n_canonical.
-        n = [m[0][j] * exact.n.x + m[1][j] * exact.n.y + m[2][j] * exact.n.z for j in range(3)]
-        return (exact.valid, exact.t, mi.Point3f(*[mi.Float(c) for c in p]),
-                dr.normalize(mi.Normal3f(*[mi.Float(c) for c in n])), exact.uv)
+        to_canonical = self._matrix_rows(self.to_canonical, index, active)
+        o, d = world_ray_to_canonical(to_canonical, mi.Point3d(ray.o), mi.Vector3d(ray.d))
+        exact = intersect_canonical(o, d, mi.Float(0.0), ray.maxt, active)
+        p = canonical_point_to_world(self._matrix_rows(self.to_world, index, active), exact.p)
+        return (exact.valid, exact.t, p, canonical_normal_to_world(to_canonical, exact.n),
+                exact.uv)
 
     @staticmethod
     def _fill(si, ray, hit, t, p, n, uv):
@@ -133,10 +127,3 @@ class AnalyticRefiner(ReadsScene):
         si.dp_du[hit] = si.sh_frame.s
         si.dp_dv[hit] = si.sh_frame.t
         si.wi[hit] = si.to_local(-ray.d)
-
-
-class _Triple:
-    """x, y, z access to three arrays (float64 canonical coordinates)."""
-
-    def __init__(self, values):
-        self.x, self.y, self.z = values

@@ -39,7 +39,7 @@ SAMPLE_BYTES = 40
 #: Bytes kept per pixel of a band (sums, sample count, the image block).
 PIXEL_BYTES = 64
 #: Bytes a launch takes per camera sample in flight, inside and around the
-#: kernel, for the stack tracer and for each ray of a wavefront generation.
+#: kernel, for the depth-first tracer and for each ray of a wavefront generation.
 LAUNCH_SAMPLE_BYTES = 96
 #: Dr.Jit's arrays hold fewer than 2^32 entries.
 JIT_ENTRIES = 1 << 32

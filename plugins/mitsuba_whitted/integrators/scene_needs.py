@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import mitsuba as mi
 
+from ..shapes.analytic import is_analytic
 from .offsets import scene_scale
 
 
@@ -83,6 +84,6 @@ def analyse(scene: mi.Scene) -> SceneNeeds:
     needs.transmissive = bool(needs.transmission_components) or needs.null_surfaces
     needs.smooth_surfaces = any(mi.has_flag(b.flags(), mi.BSDFFlags.Smooth) for b in bsdfs)
     needs.scale = scene_scale(scene)
-    needs.analytic_shapes = [s for s in scene.shapes() if hasattr(s, "world_to_canonical_matrix")]
+    needs.analytic_shapes = [s for s in scene.shapes() if is_analytic(s)]
     needs.bsdf_flags = tuple(tuple(b.flags(i) for i in range(b.component_count())) for b in bsdfs)
     return needs

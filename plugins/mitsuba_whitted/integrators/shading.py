@@ -1,9 +1,10 @@
 """What one Whitted hit computes: its local radiance and its delta children.
 
-Both tracers share this: the wavefront tracer (``raytree``) calls it once
-per generation with Python flags that leave unneeded work out of the kernel,
-the stack tracer (``stacktree``) calls it inside its loop with per-lane
-masks, since lanes there are at different depths of their trees.
+Both tracers share this: the wavefront tracer (:mod:`.wavefront`) calls it
+once per generation with Python flags that leave unneeded work out of the
+kernel, the depth-first tracer (:mod:`.depth_first`) calls it inside its
+loop with per-lane masks, since lanes there are at different depths of
+their trees.
 """
 
 from __future__ import annotations
@@ -30,7 +31,6 @@ class TreeSettings:
     max_depth: int          # Mitsuba's convention, already mapped from -1
     min_throughput: float
     hide_emitters: bool
-    wavefront_size: int
 
 
 @dataclass(frozen=True)

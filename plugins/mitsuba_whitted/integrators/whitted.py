@@ -10,13 +10,11 @@ from ..parameters import LastValid, checked_numbers, describe
 from . import antialias, render_plan
 from .render_plan import Demand, RenderPlan, plan_render
 from .scene_checks import check_emitters, check_placements
-from .analytic import AnalyticRefiner
-from .lighting import DirectLighting, LightingSettings, ShadowTester
-from .raytree import RayBatch, RayTreeTracer
-from .shading import MAX_TREE_RAYS, HitShader, TreeSettings
-from .stacktree import StackTreeTracer
+from .lighting import LightingSettings
 from .scene_needs import SceneNeeds, analyse
-from .scene_ref import SceneRef, identity
+from .scene_ref import identity
+from .shading import MAX_TREE_RAYS, TreeSettings
+from .tracer import RayBatch, build_tracer
 
 PLUGIN_NAME = "whitted"
 
@@ -297,28 +295,17 @@ class WhittedIntegrator(mi.SamplingIntegrator):
 
     def make_tracer(self, scene: mi.Scene, seed: int = 0, wavefront: bool = False,
                     needs: SceneNeeds = None):
-        """A ray-tree tracer specialised to what ``scene`` contains: the
-        stack tracer where its stack is deep enough, else (or when asked,
-        e.g. to capture each generation's rays) the wavefront tracer.
-        ``needs`` replaces ``analyse(scene)``, e.g. to trace with another
-        absolute offset length (its ``scale``)."""
+        """A tracer of ``scene`` with this integrator's settings
+        (:func:`.tracer.build_tracer`; ``wavefront`` asks for the wavefront
+        tracer, e.g. to capture each generation's rays). ``needs`` replaces
+        ``analyse(scene)``, e.g. to trace with another absolute offset
+        length (its ``scale``)."""
         check_placements(scene)
-        needs = needs or analyse(scene)
-        scene_ref = SceneRef(scene)
-        refiner = (AnalyticRefiner(scene_ref, needs.analytic_shapes, needs.scale)
-                   if needs.analytic_shapes else None)
-        intersect = refiner.intersect if refiner else _plain_intersect(scene_ref)
-        shadows = ShadowTester(scene_ref, needs, self.shadows, intersect)
-        lighting = DirectLighting(
-            needs, LightingSettings(self.ambient, self.emitter_samples, seed),
-            shadows)
         depth = UNBOUNDED_DEPTH if self.max_depth == -1 else self.max_depth
-        settings = TreeSettings(depth, self.min_throughput, self.hide_emitters,
-                                self.wavefront_size)
-        shader = HitShader(scene_ref, needs, settings, lighting)
-        if not wavefront and StackTreeTracer.supports(shader):
-            return StackTreeTracer(shader, intersect, refiner)
-        return RayTreeTracer(shader, intersect, refiner)
+        return build_tracer(scene, needs or analyse(scene), self.shadows,
+                            LightingSettings(self.ambient, self.emitter_samples, seed),
+                            TreeSettings(depth, self.min_throughput, self.hide_emitters),
+                            self.wavefront_size, wavefront)
 
     def _tracer_for(self, scene: mi.Scene, seed: int):
         """The last render's tracer if nothing it was built from changed
@@ -462,12 +449,17 @@ class WhittedIntegrator(mi.SamplingIntegrator):
 
     def trace_rays(self, scene: mi.Scene, ray: mi.Ray3f, seed: int = 0,
                    needs: SceneNeeds = None):
-        """Whitted radiance and alpha along arbitrary rays (``needs``: see
-        ``make_tracer``)."""
-        tracer = self.make_tracer(scene, seed, needs=needs)
+        """Whitted radiance and alpha along arbitrary rays, with the tracer of
+        the last render where it still fits (``needs``: see
+        ``make_tracer``; a tracer made for them is not kept)."""
+        if needs is None:
+            tracer = self._tracer_for(scene, int(seed))
+        else:
+            tracer = self.make_tracer(scene, seed, needs=needs)
         keys = dr.arange(mi.UInt32, dr.width(ray.o))
-        return tracer.trace(RayBatch(mi.Point3f(ray.o), mi.Vector3f(ray.d),
-                                     mi.Color3f(1), keys))
+        with dr.suspend_grad(), tracer.scene_ref.holding(scene):
+            return tracer.trace(RayBatch(mi.Point3f(ray.o), mi.Vector3f(ray.d),
+                                         mi.Color3f(1), keys))
 
     def sample(self, scene, sampler, ray, medium=None, active=True):
         """Whitted radiance along arbitrary rays (no anti-aliasing)."""
@@ -645,21 +637,6 @@ def _require_supported_variant():
         raise VariantError(
             f"{PLUGIN_NAME}: only RGB variants are supported (the active variant is "
             f"'{variant}'); use 'llvm_ad_rgb' or 'cuda_ad_rgb'.")
-
-
-def _plain_intersect(scene_ref: SceneRef):
-    """``intersect(ray, active, coherent)``: Mitsuba's own intersection.
-
-    The tracers pass ``coherent=True`` for the rays of a ray tree (Embree's
-    packet traversal): camera rays, and the mirror and refracted rays of
-    Whitted's smooth surfaces, stay coherent. That took 10% off the
-    report's scene (1200^2, pixel centres) and about 20% off the mirror and
-    cylinder case scenes (1024^2); shadow rays are faster in the incoherent
-    mode."""
-    def intersect(ray: mi.Ray3f, active: mi.Bool,
-                  coherent: bool = False) -> mi.SurfaceInteraction3f:
-        return scene_ref.get().ray_intersect(ray, mi.RayFlags.All, coherent, active)
-    return intersect
 
 
 def _film_channels(film: mi.Film) -> int:

@@ -8,6 +8,7 @@ import numpy as np
 from ..errors import check
 from ..jit import device_array
 from ..parameters import LastValid, checked_numbers, checked_transform
+from .analytic import analytic
 
 PLUGIN_NAME = "capped_cylinder"
 
@@ -87,6 +88,7 @@ def canonical_mesh(segments: int):
             np.concatenate(uv), np.concatenate(faces).astype(np.uint32))
 
 
+@analytic
 class CappedCylinder(mi.Mesh):
     r"""
     Capped cylinder (:monosp:`capped_cylinder`)
@@ -181,9 +183,6 @@ class CappedCylinder(mi.Mesh):
         (no general inversion of a possibly badly scaled product)."""
         inverse_scale = _scale([1 / self.radius, 1 / self.height, 1 / self.radius])
         return inverse_scale @ _translate(-self.center) @ self._to_world_inverse
-
-    def canonical_to_world(self) -> mi.ScalarTransform4f:
-        return mi.ScalarTransform4f(self.canonical_to_world_matrix().tolist())
 
     def world_to_canonical(self) -> mi.ScalarTransform4f:
         return mi.ScalarTransform4f(self.world_to_canonical_matrix().tolist())

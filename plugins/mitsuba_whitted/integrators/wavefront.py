@@ -20,123 +20,22 @@ traced one after the other (depth first), so memory stays bounded by about
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import drjit as dr
 import mitsuba as mi
 
-from ..camera import camera_rays
-from ..jit import index_range, sum_blocks, to_int
-from .frozen import FrozenKernel
+from ..jit import index_range, sum_blocks
 from .bsdf_query import KIND_CODES
+from .frozen import FrozenKernel
 from .shading import MAX_TREE_RAYS, HitShader, HitWork
+from .tracer import RayBatch, Tracer
 
 
-@dataclass
-class RayStats:
-    """Rays traced by kind. Device-side counts stay lazy until read."""
-    camera: int = 0
-    reflection: object = 0
-    refraction: object = 0
-    passthrough: object = 0
-    shadow: object = 0
-    #: Closest-hit queries of shadow rays through pass-through surfaces.
-    shadow_march: object = 0
-    #: Hits on analytic proxies made exact (not extra rays).
-    refined: object = 0
-    #: Rays of the kinds above (counted when spawned) left untraced because
-    #: their tree reached ``MAX_TREE_RAYS``.
-    cut: object = 0
-    generations: object = 0
-    batches: int = 0
-
-    KINDS = ("camera", "reflection", "refraction", "passthrough", "shadow", "shadow_march")
-
-    def as_dict(self) -> dict:
-        counts = {kind: to_int(getattr(self, kind)) for kind in self.KINDS}
-        counts["total"] = sum(counts.values())
-        counts["refined"] = to_int(self.refined)
-        counts["cut"] = to_int(self.cut)
-        counts["generations"] = to_int(self.generations)
-        counts["batches"] = self.batches
-        return counts
-
-
-class RayBatch:
-    """Rays of one generation: origin, direction, throughput, hash key."""
-
-    def __init__(self, o, d, throughput, key):
-        self.o, self.d, self.throughput, self.key = o, d, throughput, key
-
-    def __len__(self) -> int:
-        return dr.width(self.key)
-
-    def take(self, index: mi.UInt32) -> "RayBatch":
-        return RayBatch(dr.gather(mi.Point3f, self.o, index),
-                        dr.gather(mi.Vector3f, self.d, index),
-                        dr.gather(mi.Color3f, self.throughput, index),
-                        dr.gather(mi.UInt32, self.key, index))
-
-    def fields(self):
-        return self.o, self.d, self.throughput, self.key
-
-
-class Tracer:
-    """What both tracers hold: ``trace(rays)`` gives radiance and alpha
-    (primary hit) of camera rays and adds to ``stats``."""
-
-    def __init__(self, shader: HitShader, intersect, refiner=None):
-        self.shader = shader
-        self.scene_ref = shader.scene_ref
-        self.settings = shader.settings
-        self.intersect = intersect
-        self.refiner = refiner
-        #: When a list, ``(generation, batch)`` of every traced batch is
-        #: appended to it (benchmarks replay the very same rays through
-        #: Mitsuba's own ray casting).
-        self.captured = None
-        self._start()
-
-    def reload(self) -> None:
-        """Ready for another render: shape placements may have changed
-        since the last one (frozen kernels take the tables as arguments)."""
-        if self.refiner is not None:
-            self.refiner.load_tables()
-        self._start()
-
-    def _start(self) -> None:
-        """Fresh statistics, and the tables the kernels read besides the
-        scene and the rays."""
-        self.stats = RayStats()
-        self._kernel_inputs = self.refiner.tables() if self.refiner is not None else ()
-
-    @property
-    def camera_batch(self) -> int:
-        """Most camera samples given to ``trace_camera`` at once."""
-        return self.settings.wavefront_size
-
-    @property
-    def launch_rays(self) -> int:
-        """About the most rays in flight at once, for the memory estimate."""
-        return self.camera_batch
-
-    def trace_camera(self, sensor: mi.Sensor, positions: mi.Point2f, keys: mi.UInt32,
-                     lens: mi.Point2f = None):
-        """``trace`` of the camera rays through ``positions`` (pixel units
-        in the crop window) from ``lens`` (see ``camera_rays``)."""
-        ray, weight = camera_rays(sensor, positions, lens)
-        return self.trace(RayBatch(ray.o, ray.d, mi.Color3f(weight), keys))
-
-    def statistics(self) -> dict:
-        """Rays traced since the last ``reload``, by kind."""
-        return self.stats.as_dict()
-
-
-class RayTreeTracer(Tracer):
+class WavefrontTracer(Tracer):
     """Traces batches of camera rays to radiance, generation by generation."""
 
-    def __init__(self, shader: HitShader, intersect, refiner=None):
-        super().__init__(shader, intersect, refiner)
+    def __init__(self, shader: HitShader, intersect, refiner=None,
+                 wavefront_size: int = 1 << 18):
+        super().__init__(shader, intersect, refiner, wavefront_size)
         self.fan_out = shader.fan_out
         #: One frozen kernel per combination of work: Dr.Jit 1.5 does not
         #: always record anew when only a Python flag argument changes
@@ -166,7 +65,7 @@ class RayTreeTracer(Tracer):
                 return result
             else:
                 pending[-1].fold(result[0])
-            part = pending[-1].next_part(self.settings.wavefront_size)
+            part = pending[-1].next_part(self.wavefront_size)
             if part is None:
                 result = pending.pop().radiance()
                 continue

@@ -1,4 +1,4 @@
-"""The stack tracer: its per-lane stack against a plain-Python stack, and
+"""The depth-first tracer: its per-lane stack against a plain-Python stack, and
 its images and ray counts against the wavefront tracer's."""
 
 from pathlib import Path
@@ -10,9 +10,9 @@ import pytest
 
 from conftest import assert_finite
 from scenes import camera, floor, glass_scene, integrator, point_light, rgb, scene, sphere, wall
-from mitsuba_whitted.integrators.raytree import RayTreeTracer
-from mitsuba_whitted.integrators.stacktree import (MAX_STACK, LaneStack, StackTreeTracer,
-                                                   stack_capacity)
+from mitsuba_whitted.integrators.depth_first import (MAX_STACK, DepthFirstTracer, LaneStack,
+                                                     stack_capacity)
+from mitsuba_whitted.integrators.wavefront import WavefrontTracer
 
 ROOT = Path(__file__).resolve().parent.parent
 CAPACITY = 6
@@ -68,7 +68,7 @@ def python_order(root: float) -> int:
 
 
 def _visit_holding(stack, size, node, total, order):
-    """The stack tracer's scheme: go on with the last child, leave earlier
+    """The depth-first tracer's scheme: go on with the last child, leave earlier
     ones on the stack, pop where there is no child."""
     value, depth = node
     total = total + value * mi.Float(depth + 1)
@@ -109,7 +109,7 @@ def test_stack_capacity_bounds_a_depth_first_walk():
 
 
 def _render_both(loaded, whitted):
-    """The image and counts of the stack tracer, then of the wavefront
+    """The image and counts of the depth-first tracer, then of the wavefront
     tracer (which ``capture_rays`` selects)."""
     results = []
     for capture in (False, True):
@@ -150,12 +150,12 @@ def test_tracers_agree_on_the_report_scene():
 def test_each_tracer_where_it_belongs():
     whitted = mi.load_dict(integrator(max_depth=10))
     loaded = mi.load_dict(glass_scene(8))
-    assert isinstance(whitted.make_tracer(loaded), StackTreeTracer)
-    assert isinstance(whitted.make_tracer(loaded, wavefront=True), RayTreeTracer)
+    assert isinstance(whitted.make_tracer(loaded), DepthFirstTracer)
+    assert isinstance(whitted.make_tracer(loaded, wavefront=True), WavefrontTracer)
     # Unbounded depth with two children per glass hit: no stack is enough.
     unbounded = mi.load_dict(integrator(max_depth=-1))
     assert stack_capacity(255, 2) > MAX_STACK
-    assert isinstance(unbounded.make_tracer(loaded), RayTreeTracer)
+    assert isinstance(unbounded.make_tracer(loaded), WavefrontTracer)
 
 
 def test_every_anti_aliasing_level_replays_one_recording():

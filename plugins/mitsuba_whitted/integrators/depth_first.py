@@ -6,16 +6,14 @@ adds the radiance, goes on with the ray's last child that passes the
 local memory; a ray without children pops the stack instead. The loop ends
 when a lane has no ray left. Nothing leaves the kernel between generations,
 so there is no compaction, no fold-back and one frozen replay per batch; the
-wavefront tracer (``raytree``) stays the reference and serves what a stack
-cannot (trees deeper than :data:`MAX_STACK` allows, capturing each
+wavefront tracer (:mod:`.wavefront`) stays the reference and serves what a
+stack cannot (trees deeper than :data:`MAX_STACK` allows, capturing each
 generation's rays).
 
 Stack traffic is the kernel's own overhead, so it is kept off the common
 paths: the ray traced next stays in registers, and pushes and pops sit in
 symbolic branches that a packet skips when none of its lanes needs them (a
-camera ray ending on a diffuse wall touches the stack not at all). Measured
-on the report's scene, that took the first anti-aliasing level from about
-280 to 220 ms.
+camera ray ending on a diffuse wall touches the stack not at all).
 
 The stack holds at most ``1 + G x (fan-out - 1)`` rays, where G is the
 number of generations that may spawn children (``max_depth - 1`` with
@@ -41,10 +39,10 @@ import drjit as dr
 import mitsuba as mi
 
 from ..camera import camera_rays
-from .frozen import FrozenKernel
-from .raytree import RayBatch, Tracer
 from .bsdf_query import KIND_CODES
+from .frozen import FrozenKernel
 from .shading import MAX_TREE_RAYS, HitShader
+from .tracer import RayBatch, Tracer
 
 #: Most rays one lane's stack holds; deeper trees use the wavefront tracer.
 MAX_STACK = 32
@@ -113,17 +111,18 @@ def _select_all(mask: mi.Bool, chosen, others) -> tuple:
     return tuple(dr.select(mask, a, b) for a, b in zip(chosen, others))
 
 
-class StackTreeTracer(Tracer):
+class DepthFirstTracer(Tracer):
     """Traces batches of camera rays to radiance, each tree in one loop."""
 
-    def __init__(self, shader: HitShader, intersect, refiner=None):
-        super().__init__(shader, intersect, refiner)
+    def __init__(self, shader: HitShader, intersect, refiner=None,
+                 wavefront_size: int = 1 << 18):
+        super().__init__(shader, intersect, refiner, wavefront_size)
         self.capacity = stack_capacity(shader.spawning_generations(), shader.fan_out)
-        self._kernel = FrozenKernel(self._trace_kernel, "stack tracer",
+        self._kernel = FrozenKernel(self._trace_kernel, "depth-first tracer",
                                     undo=self._restore_totals)
         self._camera_kernel = FrozenKernel(
-            self._trace_camera_kernel, "stack tracer", undo=self._restore_totals,
-            fallback=(self._trace_camera_rays, "the stack tracer makes this sensor's camera "
+            self._trace_camera_kernel, "depth-first tracer", undo=self._restore_totals,
+            fallback=(self._trace_camera_rays, "the depth-first tracer makes this sensor's camera "
                       "rays outside its kernel, which Dr.Jit cannot freeze with them inside"))
         self._saved_totals = None
 
@@ -133,7 +132,7 @@ class StackTreeTracer(Tracer):
 
     @property
     def camera_batch(self) -> int:
-        return LAUNCH_FACTOR * self.settings.wavefront_size
+        return LAUNCH_FACTOR * self.wavefront_size
 
     def _start(self) -> None:
         super()._start()

@@ -1,0 +1,170 @@
+"""What the two ray-tree tracers share, and the choice between them.
+
+A tracer turns camera samples into radiance: ``trace(rays)`` walks the
+Whitted ray tree of each ray (:mod:`.shading` says what a hit computes).
+Two implementations stand side by side over the base here:
+
+- :mod:`.depth_first`: each camera sample's whole tree in one frozen
+  kernel, depth first, with a small per-lane stack: the fast one;
+- :mod:`.wavefront`: one generation of rays at a time for the whole batch,
+  compacted between generations: any depth, and every generation's rays
+  can be kept (``captured``) for the bench to replay.
+
+:func:`build_tracer` assembles a tracer for a scene from its parts (the
+scene's needs, the lighting, the shadow test, the analytic refinement) and
+picks the implementation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+
+from ..camera import camera_rays
+from ..jit import to_int
+from .analytic import AnalyticRefiner
+from .lighting import DirectLighting, LightingSettings, ShadowTester
+from .scene_needs import SceneNeeds
+from .scene_ref import SceneRef
+from .shading import HitShader, TreeSettings
+
+
+@dataclass
+class RayStats:
+    """Rays traced by kind. Device-side counts stay lazy until read."""
+    camera: int = 0
+    reflection: object = 0
+    refraction: object = 0
+    passthrough: object = 0
+    shadow: object = 0
+    #: Closest-hit queries of shadow rays through pass-through surfaces.
+    shadow_march: object = 0
+    #: Hits on analytic proxies made exact (not extra rays).
+    refined: object = 0
+    #: Rays of the kinds above (counted when spawned) left untraced because
+    #: their tree reached ``MAX_TREE_RAYS``.
+    cut: object = 0
+    generations: object = 0
+    batches: int = 0
+
+    KINDS = ("camera", "reflection", "refraction", "passthrough", "shadow", "shadow_march")
+
+    def as_dict(self) -> dict:
+        counts = {kind: to_int(getattr(self, kind)) for kind in self.KINDS}
+        counts["total"] = sum(counts.values())
+        counts["refined"] = to_int(self.refined)
+        counts["cut"] = to_int(self.cut)
+        counts["generations"] = to_int(self.generations)
+        counts["batches"] = self.batches
+        return counts
+
+
+class RayBatch:
+    """Rays of one generation: origin, direction, throughput, hash key."""
+
+    def __init__(self, o, d, throughput, key):
+        self.o, self.d, self.throughput, self.key = o, d, throughput, key
+
+    def __len__(self) -> int:
+        return dr.width(self.key)
+
+    def take(self, index: mi.UInt32) -> "RayBatch":
+        return RayBatch(dr.gather(mi.Point3f, self.o, index),
+                        dr.gather(mi.Vector3f, self.d, index),
+                        dr.gather(mi.Color3f, self.throughput, index),
+                        dr.gather(mi.UInt32, self.key, index))
+
+    def fields(self):
+        return self.o, self.d, self.throughput, self.key
+
+
+class Tracer:
+    """What both tracers hold: ``trace(rays)`` gives radiance and alpha
+    (primary hit) of camera rays and adds to ``stats``. ``wavefront_size``:
+    the most rays of one generation the wavefront tracer keeps at once, the
+    unit of both tracers' launch sizes."""
+
+    def __init__(self, shader: HitShader, intersect, refiner=None,
+                 wavefront_size: int = 1 << 18):
+        self.shader = shader
+        self.scene_ref = shader.scene_ref
+        self.settings = shader.settings
+        self.wavefront_size = wavefront_size
+        self.intersect = intersect
+        self.refiner = refiner
+        #: When a list, ``(generation, batch)`` of every traced batch is
+        #: appended to it (benchmarks replay the very same rays through
+        #: Mitsuba's own ray casting).
+        self.captured = None
+        self._start()
+
+    def reload(self) -> None:
+        """Ready for another render: shape placements may have changed
+        since the last one (frozen kernels take the tables as arguments)."""
+        if self.refiner is not None:
+            self.refiner.load_tables()
+        self._start()
+
+    def _start(self) -> None:
+        """Fresh statistics, and the tables the kernels read besides the
+        scene and the rays."""
+        self.stats = RayStats()
+        self._kernel_inputs = self.refiner.tables() if self.refiner is not None else ()
+
+    @property
+    def camera_batch(self) -> int:
+        """Most camera samples given to ``trace_camera`` at once."""
+        return self.wavefront_size
+
+    @property
+    def launch_rays(self) -> int:
+        """About the most rays in flight at once, for the memory estimate."""
+        return self.camera_batch
+
+    def trace_camera(self, sensor: mi.Sensor, positions: mi.Point2f, keys: mi.UInt32,
+                     lens: mi.Point2f = None):
+        """``trace`` of the camera rays through ``positions`` (pixel units
+        in the crop window) from ``lens`` (see ``camera_rays``)."""
+        ray, weight = camera_rays(sensor, positions, lens)
+        return self.trace(RayBatch(ray.o, ray.d, mi.Color3f(weight), keys))
+
+    def statistics(self) -> dict:
+        """Rays traced since the last ``reload``, by kind."""
+        return self.stats.as_dict()
+
+
+def build_tracer(scene: mi.Scene, needs: SceneNeeds, shadows: str,
+                 lighting: LightingSettings, tree: TreeSettings, wavefront_size: int,
+                 wavefront: bool = False) -> Tracer:
+    """A tracer of ``scene`` built from its ``needs``: the depth-first one
+    where its stack is deep enough, else (or when ``wavefront`` asks, e.g.
+    to capture each generation's rays) the wavefront one. ``shadows``:
+    the shadow mode of :class:`ShadowTester`."""
+    # The implementations derive from Tracer, so they are imported here.
+    from .depth_first import DepthFirstTracer
+    from .wavefront import WavefrontTracer
+
+    scene_ref = SceneRef(scene)
+    refiner = (AnalyticRefiner(scene_ref, needs.analytic_shapes, needs.scale)
+               if needs.analytic_shapes else None)
+    intersect = refiner.intersect if refiner else plain_intersect(scene_ref)
+    shadow_test = ShadowTester(scene_ref, needs, shadows, intersect)
+    shader = HitShader(scene_ref, needs, tree, DirectLighting(needs, lighting, shadow_test))
+    if not wavefront and DepthFirstTracer.supports(shader):
+        return DepthFirstTracer(shader, intersect, refiner, wavefront_size)
+    return WavefrontTracer(shader, intersect, refiner, wavefront_size)
+
+
+def plain_intersect(scene_ref: SceneRef):
+    """``intersect(ray, active, coherent)``: Mitsuba's own intersection.
+
+    The tracers pass ``coherent=True`` for the rays of a ray tree (Embree's
+    packet traversal): camera rays, and the mirror and refracted rays of
+    Whitted's smooth surfaces, stay coherent; shadow rays are faster in the
+    incoherent mode."""
+    def intersect(ray: mi.Ray3f, active: mi.Bool,
+                  coherent: bool = False) -> mi.SurfaceInteraction3f:
+        return scene_ref.get().ray_intersect(ray, mi.RayFlags.All, coherent, active)
+    return intersect
