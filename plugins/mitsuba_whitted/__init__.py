@@ -92,10 +92,10 @@ def load_file(path: str, **defines):
 
     Dr.Jit compiles registry ids into the kernels' virtual calls, so ids
     that change from process to process make a new process build a new
-    kernel and miss the kernel cache (about 2.5 s on the report's scene).
+    kernel and miss the kernel cache.
     Mitsuba's parallel loading hands ids out in thread order, and its
     merging of shapes that share a BSDF into one mesh orders them
-    differently from run to run (measured on the report's cube); both are
+    differently from run to run (the report's cube did); both are
     off here. Ray counts and render times of the report's scene are the
     same either way."""
     return mi.load_file(str(path), parallel=False, optimize=False, **defines)

@@ -34,13 +34,12 @@ def sum_blocks(values, block: int):
     (deterministic, unlike atomic scatter-adds).
 
     ``dr.block_sum`` evaluates its input and runs a reduction of its own, on
-    one thread: 0.5 ms for each channel of the 1.44 M samples of the
-    report's scene. A small block is read instead as one packet per run (a
+    one thread. A small block is read instead as one packet per run (a
     gather into a dynamically sized array reads consecutive entries
-    together: a quarter of the time of one gather per entry for four
-    channels), and its sum becomes part of whatever kernel uses it. Large
-    blocks stay with ``dr.block_sum``, which compiles in constant time,
-    where an unrolled sum took 0.4 s to compile at 64 and 41 s at 1024."""
+    together, far cheaper than one gather per entry), and its sum becomes
+    part of whatever kernel uses it. Large blocks stay with
+    ``dr.block_sum``, which compiles in constant time, where the compile
+    time of an unrolled sum grows steeply with the block."""
     values = full_width(values)
     if block > GATHERED_BLOCK:
         return dr.block_sum(values, block)

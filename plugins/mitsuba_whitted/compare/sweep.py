@@ -52,8 +52,8 @@ def timed_render(scene: mi.Scene, integrator, repeats: int = 3, **render_args):
         _, warm = timed(render, 1)
     else:
         # The second render of a Whitted setting records its frozen kernels
-        # once more (measured: 60-70 ms against 7 ms warm at 128^2); with
-        # it among three timed renders, one more stall made the median.
+        # once more, many times a warm render's time; with it among three
+        # timed renders, one more stall would make the median.
         timed(render, 1)
         _, warm = timed(render, repeats)
     return rgb(image), first, statistics.median(warm)

@@ -227,8 +227,8 @@ def _split_codes(colors: mi.Color3f, threshold: float) -> mi.UInt32:
     their 3 siblings.
 
     Worked out per cell, whose four quadrants are read as one packet per
-    channel: a third of the time of per-quadrant lanes each gathering its
-    siblings (2.2 ms on the first level of the report's scene)."""
+    channel, rather than by per-quadrant lanes each gathering its
+    siblings."""
     worst = [mi.Float(0)] * 4
     for channel in range(3):
         quadrants = [dr.clip(value, 0.0, 1.0) for value in read_runs(colors[channel], 4)]
@@ -244,9 +244,8 @@ def _quadrants_to_split(colors: mi.Color3f, threshold: float) -> mi.UInt32:
     """Indices of the quadrants that differ from their siblings, in order.
 
     The cells with any are found first and only their quadrants tested:
-    on the report's first level a compaction over its 360,000 cells and
-    one over the few thousand quadrants of the cells found took 0.9 ms
-    less than one over all 1.44 M quadrants."""
+    few cells differ, so a compaction over the cells and one over the
+    quadrants of the cells found cost less than one over every quadrant."""
     code = _split_codes(colors, threshold)
     # Evaluated once per cell: Dr.Jit would otherwise fold it into the
     # gathers below and work it out once per quadrant.

@@ -49,9 +49,8 @@ MAX_STACK = 32
 #: Camera samples per launch, in units of ``wavefront_size``: outside its
 #: kernel a sample holds only its position, key and result (28 bytes), a
 #: small share of what a ray of a wavefront generation holds, so launches
-#: this much wider stay within the wavefront tracer's memory. The report's
-#: scene (1.44 M samples in its first anti-aliasing level) then takes one
-#: launch instead of six: 6% off its render time.
+#: this much wider stay within the wavefront tracer's memory, and a large
+#: anti-aliasing level takes one launch instead of several.
 LAUNCH_FACTOR = 8
 #: Per-lane counts a kernel returns (``RayStats`` fields).
 COUNTED = ("reflection", "refraction", "passthrough", "shadow", "shadow_march", "refined",
@@ -137,11 +136,11 @@ class DepthFirstTracer(Tracer):
     def _start(self) -> None:
         super()._start()
         # Ray counts (``COUNTED``) and the deepest generation, kept on the
-        # device and added to inside the kernels: summing per-lane counts
-        # after each launch took 190 reductions per render. Opaque from the
-        # start: zeros would be a literal in the first launch and memory in
-        # the next, and Dr.Jit records a frozen kernel anew when an input
-        # changes so (30 ms more for the first render).
+        # device and added to inside the kernels, rather than summed from
+        # per-lane counts after each launch (a reduction per kind and
+        # launch). Opaque from the start: zeros would be a literal in the
+        # first launch and memory in the next, and Dr.Jit records a frozen
+        # kernel anew when an input changes so.
         self._counts = dr.opaque(mi.UInt32, 0, len(COUNTED))
         self._deepest = dr.opaque(mi.UInt32, 0, 1)
 

@@ -66,9 +66,9 @@ class ShadowTester(ReadsScene):
 
         A SIMD packet none of whose lanes casts a shadow ray skips the test
         (a symbolic branch): Embree called with an empty packet still costs
-        about as much as a full one's setup, which was 12% of the render
-        time on the report's scene (packets of sky, of glass, of finished
-        ray trees)."""
+        about as much as a full one's setup, and many packets have no
+        shadow ray at all (packets of sky, of glass, of finished ray
+        trees)."""
         passed = mi.Color3f(0)
         marched = mi.UInt32(0)
         if active:

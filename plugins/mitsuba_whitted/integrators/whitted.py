@@ -654,7 +654,7 @@ def _settle_sampler(sensor: mi.Sensor) -> None:
     Whitted draws no random numbers, but the frozen kernels take the sensor,
     and with it its sampler, as an input: a sampler seeded after the first
     render and never before it looked like a changed input, and the second
-    render recorded the kernels once more (about 50 ms)."""
+    render recorded the kernels once more."""
     sampler = sensor.sampler()
     if sampler is not None:
         sampler.seed(0, 1)
