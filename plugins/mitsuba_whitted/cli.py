@@ -206,7 +206,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     bench_ = commands.add_parser(
         "bench", help="speed, ray-casting bound, memory and scaling, measured in one run")
-    bench_.add_argument("scene", nargs="?", help="scene (default: the report's scene)")
+    bench_.add_argument("scene", nargs="?", help="scene (default: scenes/cosc363.xml)")
     bench_.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
     bench_.add_argument("--quick", action="store_true", help="small sizes, few repeats")
     _add_scene_options(bench_)

@@ -1,4 +1,4 @@
-"""The ``phong`` BSDF: the report's Phong shading, normalized so that a path
+"""The ``phong`` BSDF: the COSC363 ray tracer's Phong shading, normalized so that a path
 tracer renders it correctly too."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from ..parameters import LastValid, checked_numbers, describe, read_texture
 
 PLUGIN_NAME = "phong"
 
-#: A moderately sharp highlight. The report does not state its exponent.
+#: A moderately sharp highlight; the COSC363 ray tracer's is not known.
 DEFAULT_EXPONENT = 30.0
 
 _DIFFUSE = mi.BSDFFlags.DiffuseReflection
@@ -24,8 +24,10 @@ REFLECTANCES = ("diffuse_reflectance", "specular_reflectance")
 
 class Phong(mi.BSDF):
     r"""
-    Phong BSDF (``phong``)
-    ----------------------
+    .. _bsdf-phong:
+
+    Phong BSDF (:monosp:`phong`)
+    ----------------------------
 
     .. pluginparameters::
 

@@ -1,4 +1,4 @@
-"""Pixel sampling patterns: pixel centres, n x n grids, the report's
+"""Pixel sampling patterns: pixel centres, n x n grids, the COSC363 ray tracer's
 adaptive 4-way subdivision and contrast-driven supersampling.
 
 Every pattern is deterministic and every reduction has a fixed order, so the
@@ -6,10 +6,10 @@ same scene always gives the same image bit for bit: samples of one pixel (or
 one cell) are contiguous and summed block by block in a fixed order, never
 by atomic scatter-adds whose order would vary between runs.
 
-Adaptive subdivision (the report's recursive anti-aliasing): a pixel is first
+Adaptive subdivision (its recursive anti-aliasing): a pixel is first
 sampled at the centres of its four quadrants. A quadrant whose colour differs
 from the mean of its three siblings by more than ``threshold`` (largest
-per-channel difference of the colours clamped to [0, 1], as the report
+per-channel difference of the colours clamped to [0, 1], as that program
 compares displayable colours) becomes a cell of its own and is sampled again
 at the centres of its four quadrants, up to ``max_depth`` levels. A leaf at
 level L covers 4^-(L+1) of its pixel, so each cell's value is the mean of its
@@ -20,7 +20,7 @@ first. A pixel whose 3 x 3 neighbourhood of centre samples has a contrast
 ``(max - min) / (max + min)`` above ``threshold`` in some channel (R, G, B or
 alpha) is traced again with ``n^2`` points of the Hammersley set and takes
 their mean. Looking at the neighbours finds edges that pass between sample
-points, which the report's per-pixel rule cannot see (its error stops
+points, which the adaptive per-pixel rule cannot see (its error stops
 falling however deep it goes), and the Hammersley points resolve an edge
 far finer than a grid of the same count: where aliasing is the only error,
 this converges much faster than either.
@@ -260,7 +260,7 @@ def _quadrants_to_split(colors: mi.Color3f, threshold: float) -> mi.UInt32:
 
 
 class AdaptiveSampler:
-    """The report's recursive 4-way subdivision, one level per wavefront."""
+    """Recursive 4-way subdivision of the pixels, one level per wavefront."""
 
     def __init__(self, threshold: float, max_depth: int, budget: SampleBudget,
                  warn: Callable[[str], None], lens: bool = False):

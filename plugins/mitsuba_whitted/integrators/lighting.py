@@ -116,8 +116,9 @@ class ShadowTester(ReadsScene):
 
         "physical": only surfaces that transmit without bending the ray
         (index-matched dielectrics, thin dielectrics, null and masks);
-        "tinted" (or its first name, "seed"): refracting surfaces too, as
-        in the report's lightened shadows behind glass.
+        "tinted" (or its first name, "seed"): refracting surfaces too, for
+        the lightened, tinted shadows behind glass of the COSC363 ray
+        tracer.
         """
         passed = mi.Color3f(0)
         for component in self.needs.transmission_components:

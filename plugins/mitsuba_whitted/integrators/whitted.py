@@ -104,8 +104,8 @@ class WhittedIntegrator(mi.SamplingIntegrator):
          mask), tinted by their transmittance; refracting surfaces block
          them, as they block Mitsuba's (``volpath`` passes null, mask and
          thin surfaces too; ``path`` passes none). ``"tinted"`` (also
-         ``"seed"``): refracting surfaces pass light too, the report's
-         lightened shadows behind glass. The shadow ray goes on straight;
+         ``"seed"``): refracting surfaces pass light too, the COSC363 ray
+         tracer's lightened shadows behind glass. The shadow ray goes on straight;
          at each surface it crosses, it passes the part the surface
          transmits at the angle where the ray meets it, as if arriving from
          outside (1 - Fresnel reflectance, times the surface's
@@ -132,7 +132,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
        - |string|
        - Anti-aliasing: ``"none"`` (pixel centres), ``"grid"``
          (``aa_samples`` x ``aa_samples`` stratified samples),
-         ``"adaptive"`` (the report's recursive four-way split) or
+         ``"adaptive"`` (recursive four-way split of the pixels) or
          ``"contrast"`` (pixel centres, then ``aa_samples``\ :sup:`2`
          Hammersley points in each pixel whose neighbourhood contrast is
          high, after Mitchell 1987). (Default: none)

@@ -91,6 +91,8 @@ def canonical_mesh(segments: int):
 @analytic
 class CappedCylinder(mi.Mesh):
     r"""
+    .. _shape-capped_cylinder:
+
     Capped cylinder (:monosp:`capped_cylinder`)
     -------------------------------------------
 

@@ -3,7 +3,7 @@
 The transform parameters (``to_world``) are inverted once, with a check.
 
 ``sphere_map`` and ``planar_map`` compute texture coordinates from the
-surface point or normal, as the report does, and hand them to any nested
+surface point or normal, as the COSC363 ray tracer does, and hand them to any nested
 texture (usually a ``bitmap``). ``mi.Texture`` is a different class in each
 Mitsuba variant (and nanobind types admit one base only, so a mixin will not
 do): :func:`uv_remap_base` builds the shared base for the active variant, and

@@ -1,4 +1,4 @@
-"""The report's ground-plane mapping: uv from world x and z, for any nested texture."""
+"""The COSC363 ray tracer's ground-plane mapping: uv from world x and z, for any nested texture."""
 
 from __future__ import annotations
 
@@ -41,20 +41,20 @@ class PlanarMap(uv_remap_base()):
        - World z range the image spans once, as for x. (Default: -1, 1)
        - |exposed|
 
-    The report's texture for its ground plane, for the world point
-    p = (x, y, z), written exactly as the report does:
+    The COSC363 ray tracer's mapping for its ground plane, for the world
+    point p = (x, y, z), written exactly as it was:
 
         u = (x − x_min) / (x_max − x_min),   v = (z − z_min) / (z_min − z_max)
 
-    u runs from 0 at x_min to 1 at x_max. The report's denominator for v is
+    u runs from 0 at x_min to 1 at x_max. The denominator for v is
     z_min − z_max, which is negative: v runs from 0 at z_min down to −1 at
     z_max, and with the nested bitmap's default ``repeat`` wrap that is the
     image once, with v ≡ 1 − (z − z_min)/(z_max − z_min). A Mitsuba bitmap
     has its top row at v = 0, so the image's top edge lies along z = z_max
     (the edge nearest a camera on the +z side) and its left edge along x_min.
     Seen from above (+y), with +x to the right, the picture is therefore
-    mirrored top to bottom; it reads correctly from below. (The report drew
-    with OpenGL, whose t = 0 is the bottom row: there the same formula puts
+    mirrored top to bottom; it reads correctly from below. (That program
+    drew with OpenGL, whose t = 0 is the bottom row: there the same formula puts
     the image upright for a viewer at +z looking down the −z axis.) Points
     outside the bounds repeat or clamp the image as the nested texture's
     wrap mode says. y is ignored.

@@ -1,4 +1,4 @@
-"""The report's sphere mapping: uv from the normal, for any nested texture."""
+"""The COSC363 ray tracer's sphere mapping: uv from the normal, for any nested texture."""
 
 from __future__ import annotations
 
@@ -29,12 +29,12 @@ def unit_direction(d: mi.Vector3f) -> mi.Vector3f:
 
 
 def asin_uv(n: mi.Vector3f) -> mi.Point2f:
-    """The report's mapping: u = 0.5 − asin(n_x)/π, v = 0.5 − asin(n_y)/π."""
+    """The ``asin`` mapping: u = 0.5 − asin(n_x)/π, v = 0.5 − asin(n_y)/π."""
     return mi.Point2f(0.5 - dr.asin(n.x) / math.pi, 0.5 - dr.asin(n.y) / math.pi)
 
 
 def atan_uv(n: mi.Vector3f) -> mi.Point2f:
-    """The report's alternative u = 0.5 + tan⁻¹(n_y/n_x)/(2π), written with
+    """The ``atan`` mapping u = 0.5 + tan⁻¹(n_y/n_x)/(2π), written with
     atan2 (quadrant-correct, finite at n_x = 0); v as in :func:`asin_uv`."""
     return mi.Point2f(0.5 + dr.atan2(n.y, n.x) / (2 * math.pi),
                       0.5 - dr.asin(n.y) / math.pi)
@@ -82,18 +82,18 @@ class SphereMap(uv_remap_base()):
          map. (Default: identity)
        - |exposed|
 
-    The report's "non planar texturing": texture coordinates come from a
+    The COSC363 ray tracer's "non planar texturing": texture coordinates come from a
     unit direction n, by default the shading normal, and the nested texture
     is evaluated at them (with a copy of the surface interaction whose uv is
     replaced, so it works with any shape's own uv and any texture):
 
-    - ``asin`` (the report's): u = 0.5 − asin(n_x)/π, v = 0.5 − asin(n_y)/π.
+    - ``asin`` (its choice): u = 0.5 − asin(n_x)/π, v = 0.5 − asin(n_y)/π.
       Front (n_z > 0) and back hemispheres get the same uv: the back shows
-      the image mirrored. The report chose it because it did not stretch
-      the lemons.
-    - ``atan`` (the report's alternative): u = 0.5 + atan2(n_y, n_x)/(2π),
+      the image mirrored. It was chosen because it did not stretch the
+      lemons.
+    - ``atan`` (its alternative): u = 0.5 + atan2(n_y, n_x)/(2π),
       v as ``asin``: the image is wrapped once around the z axis, which
-      stretches it, as the report found. The seam is at n_x < 0, n_y = 0.
+      stretches it, as its author found. The seam is at n_x < 0, n_y = 0.
     - ``equirect``: longitude/latitude about +y,
       u = 0.5 + atan2(n_x, n_z)/(2π), v = acos(n_y)/π. The seam is at
       n_x = 0, n_z < 0 (the back, seen from +z).

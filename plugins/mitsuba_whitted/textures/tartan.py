@@ -1,4 +1,4 @@
-"""The report's procedural "tartan" texture."""
+"""The COSC363 ray tracer's procedural "tartan" texture."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from .common import HiddenParameter, apply_rows, inverse_rows, read_to_world
 
 PLUGIN_NAME = "tartan"
 
-#: The report's "orange": full red, half green, no blue.
+#: Its "orange": full red, half green, no blue.
 DEFAULT_COLOR = (1.0, 0.5, 0.0)
 DEFAULT_FREQUENCY = 3.0
 
@@ -46,10 +46,10 @@ class Tartan(mi.Texture):
          map. (Default: identity)
        - |exposed|
 
-    The procedural texture of the COSC363 report. At the (texture-space)
+    The procedural texture of the COSC363 ray tracer. At the (texture-space)
     point p = (x, y, z) the colour is ``color`` where sin(f·x) > 0 and
     cos(f·y) > 0, which draws a lattice of squares, and elsewhere the
-    "multicoloured background" (sin x, sin y, sin z). The report used the
+    "multicoloured background" (sin x, sin y, sin z). That program used the
     raw sines, which are negative half of the time; here each channel is
     clamped to [0, 1] so the texture is a physical reflectance (a negative
     albedo would make a BSDF emit negative light).
@@ -82,7 +82,7 @@ class Tartan(mi.Texture):
 
     def __init__(self, props: mi.Properties):
         mi.Texture.__init__(self, props)
-        # The report's background is an RGB triple of sines: no spectrum.
+        # The background is an RGB triple of sines: no spectrum.
         check(mi.is_rgb, PLUGIN_NAME, "color",
               f"is RGB, which the variant '{mi.variant()}' cannot use: choose an RGB "
               "variant such as llvm_ad_rgb")
