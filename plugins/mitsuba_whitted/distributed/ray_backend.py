@@ -1,8 +1,8 @@
 """Tasks on Ray: a local Ray started for the job, or an existing cluster.
 
 Each task asks Ray for one CPU and its worker renders with one Dr.Jit
-thread, so a node runs as many tasks at once as it has CPUs. At most
-``workers`` tasks are in flight; the others wait here, so Ctrl-C has only
+thread, so a node runs as many tasks at once as it has CPUs. At most two
+tasks per worker are in flight; the others wait here, so Ctrl-C has only
 those few to cancel. Ray runs a task again when its worker process or node
 dies (up to :data:`MAX_RETRIES` times); a task whose Python code fails is
 not retried, since it would fail the same way.
@@ -44,6 +44,11 @@ CONNECT_SECONDS = 5.0
 JOIN_ATTEMPTS = 2
 #: Seconds between looks at the tasks in flight (Ctrl-C is seen between them).
 POLL_SECONDS = 0.5
+#: Seconds to fetch the image of a task that has finished.
+FETCH_SECONDS = 60.0
+#: Tasks in flight per worker: one running and one waiting on the worker,
+#: so that it never waits for this process between two tasks.
+IN_FLIGHT_PER_WORKER = 2
 
 
 @ray.remote(num_cpus=1, max_retries=MAX_RETRIES)
@@ -71,7 +76,7 @@ def host_and_port(address: str) -> tuple[str, int]:
     host, sep, port = address.split("://")[-1].rpartition(":")
     if not sep or not host or not port.isdigit():
         raise ClusterError(f"mitsuba-whitted: a cluster address is HOST:PORT (got '{address}').")
-    return host, int(port)
+    return host.strip("[]"), int(port)
 
 
 def check_reachable(address: str) -> None:
@@ -105,13 +110,17 @@ def _init(workers: int | None, address: str | None) -> None:
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
     quiet = {"log_to_driver": False, "logging_level": logging.WARNING}
     if address is None:
+        # Ray protects a local Ray with a token of this user's by default,
+        # and says so at every start; that is the setting wanted here.
+        logging.getLogger("ray._private.authentication.authentication_token_setup").setLevel(
+            logging.ERROR)
         ray.init(address="local", num_cpus=workers, include_dashboard=False, **quiet)
         return
     check_reachable(address)
     try:
         with _join_attempts(JOIN_ATTEMPTS):
             ray.init(address=address, **quiet)
-    except (ConnectionError, RuntimeError, ValueError) as error:
+    except (ConnectionError, ImportError, RuntimeError, ValueError) as error:
         detail = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
         raise ClusterError(f"mitsuba-whitted: could not join the Ray cluster at {address}: "
                            f"{detail}") from None
@@ -146,7 +155,7 @@ class RayBackend:
         self.cancelled = []
         try:
             while pending or in_flight:
-                while pending and len(in_flight) < self.workers:
+                while pending and len(in_flight) < IN_FLIGHT_PER_WORKER * self.workers:
                     index, task = pending.popleft()
                     bundle, contents = shipped[task.scene]
                     in_flight[render_remote.remote(task, environment, bundle, *contents)] = index
@@ -177,7 +186,7 @@ class RayBackend:
     @staticmethod
     def _fetch(ref, task, source):
         try:
-            return ray.get(ref, timeout=POLL_SECONDS * 60)
+            return ray.get(ref, timeout=FETCH_SECONDS)
         except ray.exceptions.RayTaskError as error:
             cause = error.cause
             if isinstance(cause, (RuntimeError, ValueError, OSError)):
