@@ -176,7 +176,8 @@ def _add_scene_options(parser: argparse.ArgumentParser) -> None:
 def _add_cluster_options(parser: argparse.ArgumentParser) -> None:
     """Where the tasks run: in this process unless one of these is given."""
     parser.add_argument("--workers", type=int, metavar="N",
-                        help="run the tasks on N Ray workers (a local Ray unless --cluster)")
+                        help="run the tasks on N Ray workers (a local Ray unless --cluster "
+                        "or $RAY_ADDRESS)")
     parser.add_argument("--cluster", metavar="ADDRESS",
                         help="run the tasks on the Ray cluster at ADDRESS (HOST:PORT; "
                         "default $RAY_ADDRESS)")

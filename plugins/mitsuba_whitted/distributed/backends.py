@@ -30,11 +30,7 @@ class InProcess:
     every core. One scene is loaded at a time (scenes kept alive make every
     later frozen kernel call dearer)."""
 
-    workers = 1
     description = "in-process"
-
-    def __init__(self):
-        self.tasks_run = 0
 
     def run(self, tasks, scenes, on_result) -> None:
         loaded, integrators = (None, None), {}
@@ -44,9 +40,7 @@ class InProcess:
                 loaded = (task.scene, scenes[task.scene].load())
             if task.integrator_key not in integrators:
                 integrators[task.integrator_key] = make_integrator(task)
-            image = render_task(loaded[1], integrators[task.integrator_key], task)
-            self.tasks_run += 1
-            on_result(index, image)
+            on_result(index, render_task(loaded[1], integrators[task.integrator_key], task))
 
 
 def in_order(consume):

@@ -127,9 +127,11 @@ def _init(workers: int | None, address: str | None) -> None:
 
 
 class RayBackend:
+    """Runs a job's tasks on the Ray this process has joined, at most
+    :data:`IN_FLIGHT_PER_WORKER` per worker at a time."""
+
     def __init__(self, workers: int, address: str | None):
         self.workers = workers
-        self.address = address
         self.description = (f"{workers} workers on the Ray cluster at {address}" if address
                             else f"{workers} workers on a local Ray")
         self.tasks_run = 0

@@ -49,7 +49,7 @@ class SceneSource:
     path: Path | None
     defines: dict = field(default_factory=dict)
     scene: object = None
-    digest: str = ""
+    digest: str = field(init=False, default="")
 
     def __post_init__(self):
         # Imported here: the comparison's references import this package.
