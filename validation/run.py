@@ -18,7 +18,7 @@ import mitsuba as mi
 import numpy as np
 
 from mitsuba_whitted.camera import camera_rays, pixel_centres
-from mitsuba_whitted.cli import Progress
+from mitsuba_whitted.cli import Progress, add_cluster_options
 from mitsuba_whitted.compare import (CompareOptions, ReferenceCache, cache_key, cached_reference,
                                      compare_scene, equivalence_test, flip_error, luminance,
                                      missing_energy_share, missing_light, noise_rel_mse,
@@ -51,11 +51,9 @@ WARM_RENDERS = 5
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description="Regenerate validation/report/.")
-    parser.add_argument("--workers", type=int, metavar="N",
-                        help="render the path references on N Ray workers")
-    parser.add_argument("--cluster", metavar="ADDRESS",
-                        help="render the path references on the Ray cluster at ADDRESS")
+    parser = argparse.ArgumentParser(description="Regenerate validation/report/; the path "
+                                     "references' tasks run where these options say.")
+    add_cluster_options(parser)
     args = parser.parse_args(argv)
     with backend(args.workers, args.cluster) as runner:
         return write_report(runner)

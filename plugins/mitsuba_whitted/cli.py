@@ -173,7 +173,7 @@ def _add_scene_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--variant", default=DEFAULT_VARIANT)
 
 
-def _add_cluster_options(parser: argparse.ArgumentParser) -> None:
+def add_cluster_options(parser: argparse.ArgumentParser) -> None:
     """Where the tasks run: in this process unless one of these is given."""
     parser.add_argument("--workers", type=int, metavar="N",
                         help="run the tasks on N Ray workers (a local Ray unless --cluster "
@@ -208,7 +208,7 @@ def build_parser() -> argparse.ArgumentParser:
     compare.add_argument("--quick", action="store_true",
                          help="fewer settings and a cheaper reference, for a first look")
     _add_scene_options(compare)
-    _add_cluster_options(compare)
+    add_cluster_options(compare)
     compare.set_defaults(run=command_compare)
 
     many = commands.add_parser(
@@ -220,7 +220,7 @@ def build_parser() -> argparse.ArgumentParser:
     many.add_argument("--format", default="exr", choices=["exr", "hdr", "pfm", "png", "jpg"],
                       help="image format (default exr)")
     _add_scene_options(many)
-    _add_cluster_options(many)
+    add_cluster_options(many)
     many.set_defaults(run=command_render_many)
 
     bench_ = commands.add_parser(
