@@ -3,11 +3,14 @@
 #   make test     runs the whole test suite
 # Both create .venv, install the pinned packages and make sure a libLLVM that
 # Dr.Jit can use is present (installing libllvm19 with apt-get when possible).
+# make test also installs Ray (the optional [cluster] extra), which the
+# tests of the distributed backends need.
 
 PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
+CLUSTER_STAMP := $(VENV)/.installed-cluster
 
 .PHONY: all render test validate bench llvm clean
 
@@ -19,6 +22,10 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install --quiet -e '.[test,validate]'
 	touch $(STAMP)
 
+$(CLUSTER_STAMP): $(STAMP)
+	$(PY) -m pip install --quiet -e '.[cluster]'
+	touch $(CLUSTER_STAMP)
+
 llvm: $(STAMP)
 	@bash .ci/ensure-llvm.sh $(PY)
 
@@ -26,7 +33,7 @@ render: llvm
 	mkdir -p renders
 	$(PY) -m mitsuba_whitted.cli render scenes/cosc363.xml -o renders/cosc363.png
 
-test: llvm
+test: llvm $(CLUSTER_STAMP)
 	$(PY) -m pytest -q
 
 validate: llvm

@@ -6,9 +6,11 @@ run only re-renders Whitted and re-times the sweeps.
 
 from __future__ import annotations
 
+import argparse
 import shutil
 import sys
 import time
+from functools import partial
 from pathlib import Path
 
 import mitsuba_whitted
@@ -16,15 +18,16 @@ import mitsuba as mi
 import numpy as np
 
 from mitsuba_whitted.camera import camera_rays, pixel_centres
-from mitsuba_whitted.cli import Progress
+from mitsuba_whitted.cli import Progress, add_cluster_options
 from mitsuba_whitted.compare import (CompareOptions, ReferenceCache, cache_key, cached_reference,
                                      compare_scene, equivalence_test, flip_error, luminance,
                                      missing_energy_share, missing_light, noise_rel_mse,
-                                     path_batches, rel_mse, scene_digest, scene_whitted_settings,
+                                     path_batches, rel_mse, scene_whitted_settings,
                                      timed_render,                                      whitted_batches)
 from mitsuba_whitted.compare.report import MarkdownReport, number
 from mitsuba_whitted.compare.scene_report import machine
 from mitsuba_whitted.compare.sweep import speedup_text
+from mitsuba_whitted.distributed import SceneSource, backend
 from validation import reference_errors, stability
 from validation.scenes import (BLEND_DIFFUSE, BLEND_WEIGHT, REPORT_SCENE, SPEED,
                                EquivalenceCase, blend_scene, equivalence_cases)
@@ -49,7 +52,16 @@ SPEED_RES, SPEED_REFERENCE_SPP = 128, 4096
 WARM_RENDERS = 5
 
 
-def main() -> int:
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description="Regenerate validation/report/; the path "
+                                     "references' tasks run where these options say.")
+    add_cluster_options(parser)
+    args = parser.parse_args(argv)
+    with backend(args.workers, args.cluster) as runner:
+        return write_report(runner)
+
+
+def write_report(runner) -> int:
     started = time.perf_counter()
     mitsuba_whitted.set_variant("llvm_ad_rgb")
     if REPORT.exists():
@@ -63,8 +75,8 @@ def main() -> int:
                      "`mitsuba-whitted compare SCENE.xml`.")
     seconds = {}
     for title, section in (("equivalence", equivalence_section),
-                           ("report's scene", report_scene_section),
-                           ("speed against error", speed_section),
+                           ("report's scene", partial(report_scene_section, backend=runner)),
+                           ("speed against error", partial(speed_section, backend=runner)),
                            ("numerical stability", stability_section),
                            ("where the reference is wrong", reference_section)):
         section_started = time.perf_counter()
@@ -135,12 +147,14 @@ def equivalence_section(report: MarkdownReport, cache: ReferenceCache) -> None:
 
 # --------------------------------------------------------------- report's scene
 
-def report_scene_section(report: MarkdownReport, cache: ReferenceCache) -> None:
+def report_scene_section(report: MarkdownReport, cache: ReferenceCache, backend) -> None:
     defines = {"res": str(SCENE_RES)}
     scene = mitsuba_whitted.load_file(REPORT_SCENE, **defines)
-    key = cache_key(kind="report scene", scene=scene_digest(REPORT_SCENE, defines),
+    source = SceneSource(REPORT_SCENE, defines, scene)
+    key = cache_key(kind="report scene", scene=source.digest,
                     spp=SCENE_SPP, passes=16, integrator={"type": "path", "max_depth": 32})
-    reference = cached_reference(cache, key, scene, SCENE_SPP, progress=Progress())
+    reference = cached_reference(cache, key, source, SCENE_SPP, progress=Progress(),
+                                 backend=backend)
     report_look = scene.integrator()
     physical = mi.load_dict({"type": "whitted", **scene_whitted_settings(scene),
                              "shadows": "physical", "ambient": {"type": "rgb", "value": [0, 0, 0]}})
@@ -190,7 +204,7 @@ def report_scene_section(report: MarkdownReport, cache: ReferenceCache) -> None:
 
 # ------------------------------------------------------------------ speed/error
 
-def speed_section(report: MarkdownReport, cache: ReferenceCache) -> None:
+def speed_section(report: MarkdownReport, cache: ReferenceCache, backend) -> None:
     options = CompareOptions(SPEED_REFERENCE_SPP, 256, WARM_RENDERS, False)
     report.heading("3. Speed against error")
     report.paragraph(
@@ -206,7 +220,7 @@ def speed_section(report: MarkdownReport, cache: ReferenceCache) -> None:
         out = REPORT / "speed" / scene_path.stem
         result = compare_scene(scene_path, out, options, {"res": str(SPEED_RES)},
                                cache_dir=cache.directory, progress=Progress(),
-                               keep_linear=False)
+                               keep_linear=False, backend=backend)
         rows.append(_speed_row(result, out))
         report.figure(f"speed/{scene_path.stem}/images/speed_vs_error.png",
                       f"{scene_path.name}: relMSE against time")

@@ -1,7 +1,9 @@
 """``mitsuba-whitted``: render scenes and report on the installation.
 
     mitsuba-whitted render SCENE.xml -o OUT.png [--variant V] [-D name=value ...]
-    mitsuba-whitted compare SCENE.xml [--out DIR] [--reference-spp N] [--quick] [-D ...]
+    mitsuba-whitted render-many SCENE.xml... --out DIR [--workers N] [--cluster ADDRESS] [-D ...]
+    mitsuba-whitted compare SCENE.xml [--out DIR] [--reference-spp N] [--quick]
+                            [--workers N] [--cluster ADDRESS] [-D ...]
     mitsuba-whitted info
 """
 
@@ -10,6 +12,8 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+
+from .progress import Progress
 
 
 class UsageError(Exception):
@@ -42,33 +46,6 @@ def one_sentence(error: BaseException) -> str:
     if lines[0].endswith(":") and items:
         return f"{lines[0]} {', '.join(items)}"
     return lines[0]
-
-
-class Progress:
-    """A one-line progress display on a terminal, silent otherwise."""
-
-    def __init__(self, stream=sys.stderr, min_interval: float = 0.2):
-        self.stream = stream
-        self.enabled = stream.isatty()
-        self.min_interval = min_interval
-        self.last = 0.0
-        self.start = time.perf_counter()
-
-    def __call__(self, done: int, total: int, what: str) -> None:
-        now = time.perf_counter()
-        if not self.enabled or (now - self.last < self.min_interval and done < total):
-            return
-        self.last = now
-        width = 30
-        filled = int(width * done / max(total, 1))
-        self.stream.write(f"\r  [{'#' * filled}{'.' * (width - filled)}] "
-                          f"{done}/{total} {what}, {now - self.start:.1f} s ")
-        self.stream.flush()
-
-    def finish(self) -> None:
-        if self.enabled:
-            self.stream.write("\r" + " " * 79 + "\r")
-            self.stream.flush()
 
 
 def _load_scene(path: str, defines: dict):
@@ -133,17 +110,36 @@ def command_compare(args) -> int:
 
     import mitsuba_whitted
     from .compare import CompareOptions, compare_scene
+    from .distributed import backend
 
     options = CompareOptions.make(args.quick, args.reference_spp)
     mitsuba_whitted.set_variant(args.variant)
     out = Path(args.out or f"compare-{Path(args.scene).stem}")
-    result = compare_scene(args.scene, out, options, _parse_defines(args.define),
-                           progress=Progress())
+    with backend(args.workers, args.cluster) as runner:
+        result = compare_scene(args.scene, out, options, _parse_defines(args.define),
+                               progress=Progress(), backend=runner)
     crossing = result.results["crossing"]
     print(f"{result.report}: reference {result.reference.spp} spp"
           f"{' (cached)' if result.reference.cached else ''}; path overtakes the most "
           f"accurate Whitted setting ({crossing['label']}) at "
           f"{crossing['relation'].replace('=', '')}{crossing['path_seconds']:.3g} s")
+    return 0
+
+
+def command_render_many(args) -> int:
+    import mitsuba_whitted
+    from .distributed import backend
+    from .distributed.batch import render_many
+
+    mitsuba_whitted.set_variant(args.variant)
+    started = time.perf_counter()
+    progress = Progress()
+    with backend(args.workers, args.cluster) as runner:
+        written = render_many(args.scenes, args.out, _parse_defines(args.define), runner,
+                              progress, f".{args.format}")
+    progress.finish()
+    print(f"{args.out}: {len(written)} images in {time.perf_counter() - started:.1f} s "
+          f"({runner.description})")
     return 0
 
 
@@ -177,6 +173,16 @@ def _add_scene_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--variant", default=DEFAULT_VARIANT)
 
 
+def add_cluster_options(parser: argparse.ArgumentParser) -> None:
+    """Where the tasks run: in this process unless one of these is given."""
+    parser.add_argument("--workers", type=int, metavar="N",
+                        help="run the tasks on N Ray workers (a local Ray unless --cluster "
+                        "or $RAY_ADDRESS)")
+    parser.add_argument("--cluster", metavar="ADDRESS",
+                        help="run the tasks on the Ray cluster at ADDRESS (HOST:PORT; "
+                        "default $RAY_ADDRESS)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     from . import DEFAULT_VARIANT
 
@@ -202,7 +208,20 @@ def build_parser() -> argparse.ArgumentParser:
     compare.add_argument("--quick", action="store_true",
                          help="fewer settings and a cheaper reference, for a first look")
     _add_scene_options(compare)
+    add_cluster_options(compare)
     compare.set_defaults(run=command_compare)
+
+    many = commands.add_parser(
+        "render-many", help="render many scenes or frames, one image each, on one machine "
+        "or a Ray cluster")
+    many.add_argument("scenes", nargs="+", metavar="SCENE", help="Mitsuba scene files (XML)")
+    many.add_argument("--out", required=True, help="directory of the images, "
+                      "OUT/<scene file's stem>.<format>")
+    many.add_argument("--format", default="exr", choices=["exr", "hdr", "pfm", "png", "jpg"],
+                      help="image format (default exr)")
+    _add_scene_options(many)
+    add_cluster_options(many)
+    many.set_defaults(run=command_render_many)
 
     bench_ = commands.add_parser(
         "bench", help="speed, ray-casting bound, memory and scaling, measured in one run")

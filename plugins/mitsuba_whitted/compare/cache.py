@@ -23,16 +23,22 @@ _FILE_REFERENCE = re.compile(
     r'<string\s+name="filename"\s+value="([^"$]+)"|<include\s+filename="([^"$]+)"')
 
 
-def referenced_files(scene_path: Path) -> list[Path]:
-    """Files a scene XML names by a fixed filename (relative to the scene)."""
-    text = scene_path.read_text(errors="replace")
+def named_files(scene_path: Path) -> list[tuple[str, Path]]:
+    """Files a scene XML names by a fixed filename: each name as written in
+    the scene and the file it resolves to (relative to the scene)."""
+    text = Path(scene_path).read_text(errors="replace")
     found = []
     for match in _FILE_REFERENCE.finditer(text):
         name = match.group(1) or match.group(2)
-        candidate = (scene_path.parent / name).resolve()
+        candidate = (Path(scene_path).parent / name).resolve()
         if candidate.is_file():
-            found.append(candidate)
-    return sorted(set(found))
+            found.append((name, candidate))
+    return found
+
+
+def referenced_files(scene_path: Path) -> list[Path]:
+    """Files a scene XML names by a fixed filename (relative to the scene)."""
+    return sorted({path for _, path in named_files(scene_path)})
 
 
 def scene_digest(scene_path: str | Path, defines: dict | None = None) -> str:

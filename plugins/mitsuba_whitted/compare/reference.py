@@ -14,6 +14,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ..distributed import InProcess, SceneSource, Task, in_order, run_job
 from .cache import ReferenceCache
 
 #: Longest reference path: long enough for glass and mirror chains, bounded
@@ -42,34 +43,52 @@ def rgb(image) -> np.ndarray:
     return np.asarray(image, dtype=np.float64)[..., :3]
 
 
-def render_reference(scene: mi.Scene, spp: int, passes: int = 16, settings: dict | None = None,
-                     progress=None) -> Reference:
-    """Mean and variance of the mean of ``passes`` path renders of
-    ``ceil(spp / passes)`` samples per pixel each."""
-    integrator = mi.load_dict(settings or path_settings())
+def reference_tasks(scene: str, spp: int, passes: int, settings: dict) -> list[Task]:
+    """One task per pass: ``ceil(spp / passes)`` samples per pixel each,
+    from the pass's own seed."""
     per_pass = max(1, -(-spp // passes))
+    return [Task(scene, REFERENCE_SEED + index, per_pass, settings) for index in range(passes)]
+
+
+class PassSums:
+    """float64 sums of the passes' colours and of their squares, each pass
+    added in turn (the job's order, so the sums come out the same bits
+    whoever rendered the passes and when)."""
+
+    def __init__(self):
+        self.total = self.square = None
+
+    def add(self, image) -> None:
+        image = rgb(image)
+        self.total = image if self.total is None else self.total + image
+        self.square = image ** 2 if self.square is None else self.square + image ** 2
+
+
+def render_reference(scene: mi.Scene | SceneSource, spp: int, passes: int = 16,
+                     settings: dict | None = None, progress=None, backend=None) -> Reference:
+    """Mean and variance of the mean of ``passes`` path renders of
+    ``ceil(spp / passes)`` samples per pixel each, rendered by ``backend``
+    (default: in this process; other backends need the scene's file, a
+    :class:`SceneSource`)."""
+    source = scene if isinstance(scene, SceneSource) else SceneSource.loaded(scene)
+    tasks = reference_tasks(source.digest, spp, passes, settings or path_settings())
+    sums = PassSums()
     started = time.perf_counter()
-    total = square = None
-    for index in range(passes):
-        image = rgb(mi.render(scene, integrator=integrator, spp=per_pass,
-                              seed=REFERENCE_SEED + index))
-        total = image if total is None else total + image
-        square = image ** 2 if square is None else square + image ** 2
-        if progress is not None:
-            progress(index + 1, passes, f"reference passes of {per_pass} spp")
+    run_job(backend or InProcess(), tasks, {source.digest: source}, in_order(sums.add),
+            progress, f"reference passes of {tasks[0].spp} spp")
     dr.sync_thread()
-    mean = total / passes
+    mean = sums.total / passes
     # Sample variance of the passes (n - 1 in the denominator) over n.
-    variance = np.maximum(square / passes - mean ** 2, 0) / (passes - 1)
-    return Reference(mean, variance, per_pass * passes, time.perf_counter() - started, False)
+    variance = np.maximum(sums.square / passes - mean ** 2, 0) / (passes - 1)
+    return Reference(mean, variance, tasks[0].spp * passes, time.perf_counter() - started, False)
 
 
-def cached_reference(cache: ReferenceCache, key: str, scene: mi.Scene, spp: int,
+def cached_reference(cache: ReferenceCache, key: str, scene: mi.Scene | SceneSource, spp: int,
                      passes: int = 16, settings: dict | None = None,
-                     progress=None) -> Reference:
+                     progress=None, backend=None) -> Reference:
     """``render_reference`` through the cache: rendered once per key."""
     def compute():
-        made = render_reference(scene, spp, passes, settings, progress)
+        made = render_reference(scene, spp, passes, settings, progress, backend)
         return {"image": made.image, "variance": made.variance,
                 "spp": np.array(made.spp), "seconds": np.array(made.seconds)}
 

@@ -17,7 +17,8 @@ import numpy as np
 
 from .. import load_file
 from ..system import proc_field
-from .cache import ReferenceCache, cache_key, scene_digest
+from ..distributed import SceneSource
+from .cache import ReferenceCache, cache_key
 from .metrics import missing_energy_share, missing_light, noise_rel_mse, rel_squared_error
 from .reference import Reference, cached_reference, path_settings
 from .report import MarkdownReport, number
@@ -72,17 +73,19 @@ def load_scene(path: str | Path, defines: dict | None = None) -> mi.Scene:
 
 def compare_scene(scene_path: str | Path, out_dir: str | Path, options: CompareOptions,
                   defines: dict | None = None, cache_dir: str | Path | None = None,
-                  progress=None, keep_linear: bool = True) -> SceneComparison:
+                  progress=None, keep_linear: bool = True, backend=None) -> SceneComparison:
     """Render, measure and report; the reference is cached in ``cache_dir``
-    (default ``<out_dir>/cache``)."""
+    (default ``<out_dir>/cache``) and rendered by ``backend`` (default: in
+    this process)."""
     scene_path, out_dir = Path(scene_path), Path(out_dir)
     scene = load_scene(scene_path, defines)
+    source = SceneSource(scene_path, defines or {}, scene)
     cache = ReferenceCache(cache_dir or out_dir / "cache")
     settings = path_settings()
-    key = cache_key(scene=scene_digest(scene_path, defines), spp=options.reference_spp,
+    key = cache_key(scene=source.digest, spp=options.reference_spp,
                     passes=REFERENCE_PASSES, integrator=settings)
-    reference = cached_reference(cache, key, scene, options.reference_spp, REFERENCE_PASSES,
-                                 settings, progress)
+    reference = cached_reference(cache, key, source, options.reference_spp, REFERENCE_PASSES,
+                                 settings, progress, backend)
     _finish(progress)
     variants = whitted_variants(scene_whitted_settings(scene), options.quick)
     points = run_sweep(scene, reference, variants, path_spp_ladder(options.path_max_spp),

@@ -1,0 +1,50 @@
+"""``mitsuba-whitted render-many``: one image per scene file, each the
+image ``mitsuba-whitted render`` writes for it, rendered by any backend."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from .backends import InProcess, run_job
+from .scene import SceneSource
+from .task import Task
+
+
+class BatchError(ValueError):
+    """Scenes that cannot make a batch, said in one sentence."""
+
+
+def output_paths(scenes: list[Path], out_dir: Path, suffix: str) -> list[Path]:
+    """``out_dir/<scene file's stem><suffix>`` for each scene; two scenes
+    that would write the same image are refused."""
+    outputs, seen = [], {}
+    for scene in scenes:
+        if not scene.is_file():
+            raise BatchError(f"mitsuba-whitted: scene file '{scene}' does not exist.")
+        output = out_dir / f"{scene.stem}{suffix}"
+        if output in seen:
+            raise BatchError(f"mitsuba-whitted: '{seen[output]}' and '{scene}' would both be "
+                             f"written to '{output}'; rename one of them.")
+        seen[output] = scene
+        outputs.append(output)
+    return outputs
+
+
+def render_many(scenes, out_dir, defines: dict | None = None, backend=None, progress=None,
+                suffix: str = ".exr") -> list[Path]:
+    """Render each scene as ``mitsuba.render(scene)`` does (its own
+    integrator, sampler and seed 0) and write its image as soon as it is
+    done; the paths written, in the scenes' order."""
+    from ..imageio import write_image
+
+    scenes = [Path(scene) for scene in scenes]
+    outputs = output_paths(scenes, Path(out_dir), suffix)
+    sources = [SceneSource(scene, defines or {}) for scene in scenes]
+    tasks = [Task(source.digest) for source in sources]
+
+    def write(index, image):
+        write_image(outputs[index], image)
+
+    run_job(backend or InProcess(), tasks, {source.digest: source for source in sources},
+            write, progress, "scenes")
+    return outputs

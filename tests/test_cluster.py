@@ -1,0 +1,159 @@
+"""References and batch renders on a real Ray cluster: identical bit for bit
+to the in-process ones, also after a worker dies mid-job; Ctrl-C; the cache;
+an unreachable address.
+
+The cluster (a head node and a second worker node, each its own
+``ray start``) is shared by the module and always stopped at its end. The
+test process itself never joins Ray: each job runs in a process of its
+own, as a user's command would.
+"""
+
+import importlib.util
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mitsuba_whitted.compare import render_reference
+from mitsuba_whitted.distributed import SceneSource
+from mitsuba_whitted.imageio import read_image
+
+if importlib.util.find_spec("ray") is None:
+    pytest.skip("Ray is not installed (pip install 'mitsuba-whitted[cluster]')",
+                allow_module_level=True)
+
+from ray_cluster import free_port, two_node_cluster  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
+SCENES = [ROOT / "scenes" / "cosc363.xml", *sorted((ROOT / "scenes" / "cases").glob("*.xml"))]
+GLASS = ROOT / "scenes" / "cases" / "glass_spheres.xml"
+JOB = Path(__file__).parent / "tools" / "cluster_job.py"
+#: Seconds any command of these tests may take.
+COMMAND_SECONDS = 300
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    with two_node_cluster() as running:
+        yield running
+
+
+def cli(*args, env=None):
+    return subprocess.run([sys.executable, "-m", "mitsuba_whitted.cli", *args], cwd=ROOT,
+                          env=env, capture_output=True, text=True, timeout=COMMAND_SECONDS)
+
+
+def in_process_reference(scene, res, spp):
+    return render_reference(SceneSource(scene, {"res": str(res)}), spp)
+
+
+def _running_tasks():
+    """Worker processes executing a render task now (Ray titles a worker's
+    process with the function it runs)."""
+    import psutil
+
+    found = []
+    for process in psutil.process_iter(["pid", "cmdline"]):
+        command = " ".join(process.info["cmdline"] or [])
+        if command.startswith("ray::render_remote"):
+            found.append(process.info["pid"])
+    return found
+
+
+def test_reference_through_cluster_is_bit_identical_after_a_worker_is_killed(cluster, tmp_path):
+    """``compare --cluster`` renders its reference on both nodes while a
+    worker process running one of its tasks is killed; Ray runs that task
+    again and the reference equals the in-process one bit for bit."""
+    res, spp = 16, 16384
+    command = [sys.executable, "-m", "mitsuba_whitted.cli", "compare", str(GLASS), "--quick",
+               "-D", f"res={res}", "--reference-spp", str(spp), "--out", str(tmp_path),
+               "--cluster", cluster.address]
+    job = subprocess.Popen(command, cwd=ROOT, env=cluster.env, stdout=subprocess.PIPE,
+                           stderr=subprocess.PIPE, text=True)
+    killed = None
+    deadline = time.monotonic() + COMMAND_SECONDS
+    while killed is None and job.poll() is None and time.monotonic() < deadline:
+        for pid in _running_tasks():
+            os.kill(pid, signal.SIGKILL)
+            killed = pid
+            break
+        time.sleep(0.02)
+    out, err = job.communicate(timeout=COMMAND_SECONDS)
+    assert killed is not None, "no task was seen running"
+    assert job.returncode == 0, err
+    (entry,) = (tmp_path / "cache").glob("*.npz")
+    with np.load(entry) as cached:
+        reference = in_process_reference(GLASS, res, spp)
+        np.testing.assert_array_equal(cached["image"], reference.image)
+        np.testing.assert_array_equal(cached["variance"], reference.variance)
+        assert int(cached["spp"]) == spp
+
+
+def test_any_number_of_workers_gives_the_same_bits(cluster, tmp_path):
+    out = tmp_path / "references.npz"
+    res, spp = 16, 256
+    subprocess.run([sys.executable, str(JOB), cluster.address, "workers", str(GLASS), str(res),
+                    str(spp), str(out)], env=cluster.env, check=True, timeout=COMMAND_SECONDS)
+    expected = in_process_reference(GLASS, res, spp)
+    with np.load(out) as made:
+        for workers in (1, 2, 16):
+            np.testing.assert_array_equal(made[f"image_{workers}"], expected.image)
+            np.testing.assert_array_equal(made[f"variance_{workers}"], expected.variance)
+
+
+def test_ctrl_c_cancels_the_tasks_and_the_cache_stays_consistent(cluster, tmp_path):
+    """Ctrl-C after the first of 16 tasks in flight: Ray cancels the others
+    (those already running may just have finished), the cache holds no
+    entry, not even a partial one; the next run renders all 16 tasks and
+    stores the entry, and the run after it renders none."""
+    result = subprocess.run([sys.executable, str(JOB), cluster.address, "interrupt",
+                             str(GLASS), "16", "4096", str(tmp_path)], env=cluster.env,
+                            check=True, timeout=COMMAND_SECONDS, capture_output=True, text=True)
+    report = json.loads(result.stdout.strip().splitlines()[-1])
+    assert report["interrupted"]
+    assert len(report["cancelled"]) == 15
+    assert set(report["cancelled"]) <= {"cancelled", "finished"}
+    assert report["cancelled"].count("cancelled") >= 15 - 2
+    assert report["entries_after_interrupt"] == []
+    assert report["tasks_of_second_run"] == 16
+    assert report["tasks_of_third_run"] == 0 and report["third_cached"]
+    assert report["entries"] == ["key.npz"]
+
+
+def _render_many_matches_render(tmp_path, *options, env=None):
+    out = tmp_path / "many"
+    result = cli("render-many", *map(str, SCENES), "--out", str(out), "-D", "res=24", *options,
+                 env=env)
+    assert result.returncode == 0, result.stderr
+    for scene in SCENES:
+        single = tmp_path / f"{scene.stem}.exr"
+        assert cli("render", str(scene), "-o", str(single), "-D", "res=24").returncode == 0
+        np.testing.assert_array_equal(read_image(out / f"{scene.stem}.exr"), read_image(single))
+
+
+def test_render_many_on_the_cluster_writes_what_render_writes(cluster, tmp_path):
+    """Each worker registers the package's plugins (the report's scene uses
+    phong, tartan, sphere_map, capped_cylinder and whitted) and rebuilds the
+    scene's textures from the bytes it was sent."""
+    _render_many_matches_render(tmp_path, "--cluster", cluster.address, env=cluster.env)
+
+
+def test_render_many_on_a_local_ray_writes_what_render_writes(tmp_path):
+    env = dict(os.environ)
+    env.pop("RAY_ADDRESS", None)
+    _render_many_matches_render(tmp_path, "--workers", "2", env=env)
+
+
+def test_unreachable_cluster_is_one_sentence_naming_the_address(tmp_path):
+    address = f"127.0.0.1:{free_port()}"
+    result = cli("render-many", str(GLASS), "--out", str(tmp_path), "--cluster", address)
+    assert result.returncode != 0
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and address in lines[0] and "no Ray cluster answers" in lines[0]
+    assert not any(tmp_path.iterdir())
