@@ -16,6 +16,7 @@ import mitsuba as mi
 import numpy as np
 
 from .. import load_file
+from ..files import write_text
 from ..system import proc_field
 from .cache import ReferenceCache, cache_key, scene_digest
 from .metrics import missing_energy_share, missing_light, noise_rel_mse, rel_squared_error
@@ -179,7 +180,7 @@ def _write_report(out_dir, scene_path, defines, reference, points, results, keep
                   "relMSE against render time")
     _image_grid(report, reference, points, keep_linear)
     _missing_light(report, reference, points, results)
-    (Path(out_dir) / "results.json").write_text(json.dumps(results, indent=1))
+    write_text(Path(out_dir) / "results.json", json.dumps(results, indent=1))
     return report.write("report.md")
 
 

@@ -128,8 +128,9 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     """
 
     def __init__(self, props: mi.Properties):
-        super().__init__(props)
+        # Refused before Mitsuba's base class warns about scalar variants.
         _require_supported_variant()
+        super().__init__(props)
         self.max_depth = props.get("max_depth", 10)
         self.ambient = mi.ScalarColor3f(props.get("ambient", mi.ScalarColor3f(0)))
         self.shadows = check_choice(props.get("shadows", "physical"), SHADOW_MODES,
@@ -303,6 +304,10 @@ class WhittedIntegrator(mi.SamplingIntegrator):
                 if self.progress is not None:
                     self.progress(stop, total, "camera samples")
             dr.eval(radiance, alpha)
+            # Wait here, where Dr.Jit lets other Python threads run: the
+            # samplers' next dr.compress would wait for these launches
+            # holding the GIL, and Ctrl-C (see interrupt.py) with it.
+            dr.sync_thread()
             return radiance, alpha
 
         return shade
