@@ -264,9 +264,14 @@ class _StderrAppender(mi.Appender):
     """Log lines on stderr (Mitsuba's own appender writes them to stdout,
     in colour even where it is not a terminal)."""
 
+    #: Logged by Mitsuba's own integrators on Ctrl-C; the command says
+    #: that it was interrupted in a line of its own.
+    WINDING_DOWN = "Received interrupt signal, winding down"
+
     def append(self, level, text):
-        sys.stderr.write(text + "\n")
-        sys.stderr.flush()
+        if self.WINDING_DOWN not in text:
+            sys.stderr.write(text + "\n")
+            sys.stderr.flush()
 
     def log_progress(self, progress, name, formatted, eta, ptr=None):
         pass  # the commands show their own progress
