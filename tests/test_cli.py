@@ -102,6 +102,7 @@ def assert_one_sentence(result, message, code=2):
 
 @pytest.mark.parametrize("args, message", [
     (["render", "missing.xml", "-o", "x.png"], "scene file 'missing.xml' does not exist"),
+    (["render", "scenes", "-o", "x.png"], "scene file 'scenes' is a folder, not a file"),
     (["render", str(SCENE), "-o", "x.png", "-D", "aa=fancy"], "whitted: parameter 'aa' must be one of"),
     (["render", str(SCENE), "-o", "x.png", "-D", "res"], "-D expects name=value"),
     (["render", str(SCENE), "-o", "x.gif", "-D", "res=8"], "cannot write 'x.gif'"),

@@ -193,6 +193,20 @@ def test_an_image_writer_failing_halfway_leaves_no_trace(tmp_path, monkeypatch, 
     assert [p.name for p in tmp_path.iterdir()] == ["x.exr"]
 
 
+def test_a_symbolic_link_is_written_through_whole(tmp_path, monkeypatch):
+    real = target_in(tmp_path, "real.png", True)
+    link = tmp_path / "link.png"
+    link.symlink_to(real.name)
+    monkeypatch.setattr(OpenImageIO, "ImageOutput", HalfWriter)
+    with pytest.raises(WriteError):
+        write_image(link, IMAGE)
+    assert real.read_bytes() == OLD and link.is_symlink()
+    monkeypatch.undo()
+    write_image(link, IMAGE)
+    assert link.is_symlink() and read_image(real).shape == IMAGE.shape
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["link.png", "real.png"]
+
+
 @pytest.fixture
 def full_disk(monkeypatch):
     """Every file flushed to the disk fails as on a full disk."""

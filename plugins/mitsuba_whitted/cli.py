@@ -68,13 +68,9 @@ def erase_line(stream) -> str:
 
 
 def _load_scene(path: str, defines: dict):
-    import os
-
     import mitsuba_whitted
 
-    if not os.path.isfile(path):
-        raise UsageError(f"mitsuba-whitted: scene file '{path}' does not exist.")
-    return mitsuba_whitted.load_file(path, **defines)
+    return mitsuba_whitted.load_file(files.check_readable(path), **defines)
 
 
 def command_render(args) -> int:
@@ -144,7 +140,6 @@ def command_compare(args) -> int:
 
 def command_bench(args) -> int:
     import json
-    from pathlib import Path
 
     import mitsuba_whitted
     from . import bench
@@ -152,9 +147,7 @@ def command_bench(args) -> int:
     if args.json:
         files.check_writable(args.json)
     mitsuba_whitted.set_variant(args.variant)
-    scene = Path(args.scene) if args.scene else bench.DEFAULT_SCENE
-    if not scene.is_file():
-        raise UsageError(f"mitsuba-whitted: scene file '{scene}' does not exist.")
+    scene = files.check_readable(args.scene or bench.DEFAULT_SCENE)
     defines = _parse_defines(args.define)
     settings = (bench.BenchSettings.quick(scene, defines) if args.quick
                 else bench.BenchSettings(scene, defines))

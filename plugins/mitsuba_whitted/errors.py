@@ -56,7 +56,7 @@ _DRJIT_CALLS = re.compile(r"^(?:(?:drjit\.[\w.]+|jit_\w+)\([^()]*\): )+")
 #: Exception classes whose name adds nothing to their message.
 _PLAIN_CLASSES = {"Exception", "RuntimeError", "ValueError", "OSError", "ParameterError",
                   "VariantError", "LLVMError", "CompareError", "UsageError", "WriteError",
-                  "ImageWriteError"}
+                  "ImageWriteError", "ReadError"}
 #: Raised by this package's plugins with a sentence that names the plugin
 #: and what is wrong: Mitsuba's heading before it adds nothing.
 _OWN_SENTENCES = {"ParameterError", "VariantError", "LLVMError", "ValueError"}

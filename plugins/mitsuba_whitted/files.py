@@ -30,6 +30,20 @@ class WriteError(OSError):
     """A file or folder could not be written; the message says which and why."""
 
 
+class ReadError(OSError):
+    """A file to read is missing, or is a folder."""
+
+
+def check_readable(path: str | Path, what: str = "scene file") -> Path:
+    """``path`` if it is a file, else a :class:`ReadError` that says why."""
+    path = Path(path)
+    if path.is_dir():
+        raise ReadError(f"mitsuba-whitted: {what} '{path}' is a folder, not a file.")
+    if not path.is_file():
+        raise ReadError(f"mitsuba-whitted: {what} '{path}' does not exist.")
+    return path
+
+
 def cannot_write(path, why: str) -> WriteError:
     return WriteError(f"mitsuba-whitted: cannot write '{path}': {why}.")
 
@@ -48,7 +62,7 @@ def check_writable(path: str | Path) -> Path:
     path = Path(path)
     if path.is_dir():
         raise cannot_write(path, "it is a folder")
-    _probe(path, path.parent)
+    _probe(path, Path(os.path.realpath(path)).parent)
     return path
 
 
@@ -81,13 +95,15 @@ def write_atomically(path: str | Path, write: Callable[[BinaryIO], None]) -> Pat
     """Write ``path`` whole or not at all: ``write(file)`` fills a temporary
     file next to it, which replaces ``path`` once it is complete and on
     the disk. An existing file keeps its permissions; a new one gets those
-    the umask allows. Raises :class:`WriteError` (with the system's reason)
-    and leaves no temporary behind, whatever stopped it."""
+    the umask allows; a symbolic link is written through. Raises
+    :class:`WriteError` (with the system's reason) and leaves no temporary
+    behind, whatever stopped it."""
     path = Path(path)
+    target = Path(os.path.realpath(path))
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        mode = _mode_for(path, 0o666)
-        handle = tempfile.NamedTemporaryFile(dir=path.parent, prefix=f".{path.name}.",
+        target.parent.mkdir(parents=True, exist_ok=True)
+        mode = _mode_for(target, 0o666)
+        handle = tempfile.NamedTemporaryFile(dir=target.parent, prefix=f".{target.name}.",
                                              suffix=".partial", delete=False)
     except OSError as error:
         raise cannot_write(path, reason(error)) from error
@@ -99,7 +115,7 @@ def write_atomically(path: str | Path, write: Callable[[BinaryIO], None]) -> Pat
             handle.flush()
             os.fchmod(handle.fileno(), mode)
             os.fsync(handle.fileno())
-        os.replace(temporary, path)
+        os.replace(temporary, target)
     except WriteError:
         raise
     except OSError as error:

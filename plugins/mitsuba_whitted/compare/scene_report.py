@@ -16,7 +16,7 @@ import mitsuba as mi
 import numpy as np
 
 from .. import load_file
-from ..files import write_text
+from ..files import check_readable, write_text
 from ..system import proc_field
 from .cache import ReferenceCache, cache_key, scene_digest
 from .metrics import missing_energy_share, missing_light, noise_rel_mse, rel_squared_error
@@ -61,9 +61,7 @@ class SceneComparison:
 
 
 def load_scene(path: str | Path, defines: dict | None = None) -> mi.Scene:
-    path = Path(path)
-    if not path.is_file():
-        raise CompareError(f"mitsuba-whitted: scene file '{path}' does not exist.")
+    path = check_readable(path)
     scene = load_file(path, **(defines or {}))
     if not scene.sensors():
         raise CompareError(f"mitsuba-whitted: scene '{path}' has no sensor, "
