@@ -115,6 +115,21 @@ def test_ctrl_c_stops_a_render(tmp_path, samples_scene, defines):
     assert not out.exists()
 
 
+@pytest.mark.parametrize("after", [0.15, 0.4])
+def test_ctrl_c_while_the_command_starts(tmp_path, after):
+    """While Python imports Dr.Jit and Mitsuba (about half a second), before
+    the command's own handling is in place."""
+    process = subprocess.Popen([sys.executable, "-m", "mitsuba_whitted.cli", "render", str(SCENE),
+                                "-o", str(tmp_path / "x.png")], stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    time.sleep(after)
+    process.send_signal(signal.SIGINT)
+    _, stderr = process.communicate(timeout=60)
+    assert process.returncode == 130, stderr
+    assert stderr == "mitsuba-whitted: interrupted.\n"
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_ctrl_c_stops_compare(tmp_path):
     out = tmp_path / "out"
     code, seconds, output = interrupted(["-m", "mitsuba_whitted.cli", "compare", str(SCENE),

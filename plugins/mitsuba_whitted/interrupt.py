@@ -79,3 +79,24 @@ class InterruptGuard:
             sys.stdout.flush()
             sys.stderr.flush()
             os._exit(EXIT_CODE)
+
+
+def started_as(module: str, script: str) -> bool:
+    """Whether this process is a command: ``script`` (a console script) or
+    ``python -m module``."""
+    argv = sys.orig_argv
+    return (os.path.basename(sys.argv[0]) == script
+            or (module in argv and argv[argv.index(module) - 1] == "-m"))
+
+
+def end_quietly_on_ctrl_c(program: str) -> None:
+    """Until a command's :class:`InterruptGuard` takes over, Ctrl-C ends the
+    process at once with one line: nothing is written yet, and a
+    ``KeyboardInterrupt`` raised while Python imports Dr.Jit and Mitsuba
+    ends in a traceback (or in a half-imported module's ``NameError``)."""
+    def end(signum, frame):
+        os.write(2, f"{program}: interrupted.\n".encode())
+        os._exit(EXIT_CODE)
+
+    signal.signal(signal.SIGINT, end)
+
