@@ -1,13 +1,17 @@
 """The mitsuba-whitted command line, run as a user would."""
 
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
 
+import drjit as dr
+import mitsuba as mi
 import numpy as np
 import pytest
 
+from mitsuba_whitted.cli import main, run_command
 from mitsuba_whitted.imageio import read_image, to_8bit
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -81,8 +85,24 @@ def test_info_names_variant_llvm_and_plugins():
         assert plugin in text
 
 
+def assert_one_sentence(result, message, code=2):
+    """Exactly one line on stderr, naming the cause: no traceback, no
+    colour codes, no pointer elsewhere, no C++ source location, no empty
+    reason after a colon."""
+    assert result.returncode == code, result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1, result.stderr
+    line = lines[0]
+    for noise in ("Traceback", "\x1b[", "(see above)", "drjit.custom"):
+        assert noise not in line, line
+    assert not re.search(r"\[\w+\.cpp:\d+\]", line), line
+    assert not line.rstrip(".").endswith(":"), line
+    assert message in line, line
+
+
 @pytest.mark.parametrize("args, message", [
     (["render", "missing.xml", "-o", "x.png"], "scene file 'missing.xml' does not exist"),
+    (["render", "scenes", "-o", "x.png"], "scene file 'scenes' is a folder, not a file"),
     (["render", str(SCENE), "-o", "x.png", "-D", "aa=fancy"], "whitted: parameter 'aa' must be one of"),
     (["render", str(SCENE), "-o", "x.png", "-D", "res"], "-D expects name=value"),
     (["render", str(SCENE), "-o", "x.gif", "-D", "res=8"], "cannot write 'x.gif'"),
@@ -90,9 +110,130 @@ def test_info_names_variant_llvm_and_plugins():
     (["render", str(SCENE), "-o", "x.png", "--variant", "scalar_rgb"], "whitted: the wavefront integrator needs a JIT variant"),
     (["render", str(SCENE), "-o", "x.png", "-D", "fov=3"], "Found unused parameters: $fov=3"),
     (["bench", "--quick", str(ROOT / "Makefile")], "Makefile' is not well-formed XML"),
+    (["render", str(SCENE), "-o", "x.png", "--fast"],
+     "mitsuba-whitted: unrecognized arguments: --fast; 'mitsuba-whitted --help' lists"),
+    ([], "mitsuba-whitted: the following arguments are required: command"),
 ])
 def test_bad_input_is_one_sentence(args, message):
-    result = cli(*args, check=False)
-    assert result.returncode == 2
-    assert message in result.stderr
-    assert len(result.stderr.strip().splitlines()) == 1, result.stderr
+    assert_one_sentence(cli(*args, check=False), message)
+
+
+#: A small scene; the body of each hostile case goes at the end.
+HOSTILE = """<scene version="3.0.0">
+    <integrator type="whitted"/>
+    <sensor type="perspective">
+        <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/></film>
+    </sensor>
+    <shape type="sphere"><transform name="to_world"><translate z="5"/></transform></shape>
+    <emitter type="point"><point name="position" x="0" y="3" z="0"/></emitter>
+    {body}
+</scene>"""
+
+
+@pytest.mark.parametrize("body, message", [
+    ('<include filename="nope.xml"/>', 'included file "nope.xml" not found'),
+    ('<include filename="broken.xml"/>', 'Parsing of XML file "{folder}/broken.xml" failed: '
+                                         'Start-end tags mismatch'),
+    ('<shape type="sphere"><bsdf type="diffuse"><texture type="bitmap" name="reflectance">'
+     '<string name="filename" value="nope.png"/></texture></bsdf></shape>',
+     '"nope.png": I/O error while attempting to open file: No such file or directory'),
+    ('<shape type="spheer"/>', 'failed to instantiate shape plugin of type "spheer": '
+                               '[PluginManager] Plugin "spheer" not found!'),
+    ('<shape type="sphere">', 'Start-end tags mismatch'),
+    (None, "No sensor specified!"),
+], ids=["include-missing", "include-broken", "texture-missing", "unknown-plugin", "malformed",
+        "no-sensor"])
+def test_a_broken_scene_is_one_sentence(tmp_path, body, message):
+    (tmp_path / "broken.xml").write_text('<scene version="3.0.0"><shape type="sphere">')
+    text = HOSTILE.format(body=body or "")
+    if body is None:
+        text = text[:text.index("<sensor")] + text[text.index("</sensor>") + 9:]
+    scene = tmp_path / "scene.xml"
+    scene.write_text(text)
+    result = cli("render", str(scene), "-o", str(tmp_path / "x.png"), check=False)
+    assert_one_sentence(result, message.format(folder=tmp_path))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["broken.xml", "scene.xml"]
+
+
+def test_warnings_go_to_stderr_in_plain_lines(tmp_path):
+    scene = tmp_path / "scene.xml"
+    scene.write_text(HOSTILE.format(body="").replace(
+        '<integrator type="whitted"/>',
+        '<integrator type="whitted"><string name="aa" value="adaptive"/>'
+        '<float name="aa_threshold" value="0"/><float name="aa_budget" value="4"/></integrator>'))
+    result = cli("render", str(scene), "-o", str(tmp_path / "x.exr"))
+    assert re.fullmatch(
+        r"warning: whitted: adaptive anti-aliasing stopped before level 1: its \d+ samples "
+        r"would pass the budget of 4 samples per pixel \('aa_budget'\); raise 'aa_budget' or "
+        r"'aa_threshold'\.\n", result.stderr), result.stderr
+    assert result.stdout.startswith(f"{tmp_path / 'x.exr'}: 8x8 rendered in ")
+    assert len(result.stdout.splitlines()) == 1
+
+
+# ------------------------------------- errors raised while a render runs
+
+
+class _Failing(mi.SamplingIntegrator):
+    """An integrator whose render raises what ``failure()`` raises."""
+
+    failure = None
+
+    def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
+        _Failing.failure()
+
+
+class _BrokenBSDF(mi.BSDF):
+    def __init__(self, props):
+        super().__init__(props)
+        raise TypeError("unsupported operand type(s) for +: 'int' and 'str'")
+
+
+def _recurse(depth=0):
+    return _recurse(depth + 1)
+
+
+def _raise(error):
+    raise error
+
+
+@pytest.mark.parametrize("failure, message", [
+    (lambda: mi.Float([1, 2, 3]) + mi.Float([1, 2]),
+     "Dr.Jit: operands have incompatible sizes! (sizes: 3, 2)."),
+    (lambda: dr.arange(mi.UInt32, 2**32 + 5),
+     "Dr.Jit: tried to create an array with 4294967301 entries, which exceeds the limit of "
+     "2^32 == 4294967296 entries; lower the film's resolution or its samples per pixel."),
+    (lambda: dr.arange(mi.UInt32, 2.5),
+     "TypeError: arange(): incompatible function arguments (invoked with types: "
+     "nanobind.nb_type, float)."),
+    (_recurse, "Python's recursion limit was reached (maximum recursion depth exceeded)."),
+    (lambda: np.empty(2**50), "the machine ran out of memory (Unable to allocate 8.00 PiB "
+                              "for an array with shape (1125899906842624,) and data type "
+                              "float64)."),
+    (lambda: _raise(KeyError("x")), "KeyError: 'x'."),
+], ids=["size-mismatch", "size-limit", "wrong-type", "recursion", "memory", "python-error"])
+def test_an_error_during_a_render_is_one_sentence(tmp_path, monkeypatch, capsys, failure, message):
+    """The real cause, not Dr.Jit's '(see above)' wrapper of ``mi.render``."""
+    mi.register_integrator("test_failing", lambda props: _Failing(props))
+    monkeypatch.setattr(_Failing, "failure", staticmethod(failure))
+    scene = tmp_path / "scene.xml"
+    scene.write_text(HOSTILE.format(body="").replace('"whitted"', '"test_failing"'))
+    assert main(["render", str(scene), "-o", str(tmp_path / "x.png")]) == 2
+    assert capsys.readouterr().err == message + "\n"
+
+
+def test_an_error_while_a_python_plugin_loads_is_one_sentence(tmp_path, capsys):
+    """Mitsuba puts the plugin's Python traceback into its own message."""
+    mi.register_bsdf("test_broken", lambda props: _BrokenBSDF(props))
+    scene = tmp_path / "scene.xml"
+    scene.write_text(HOSTILE.format(body='<shape type="sphere"><bsdf type="test_broken"/></shape>'))
+    assert main(["render", str(scene), "-o", str(tmp_path / "x.png")]) == 2
+    assert capsys.readouterr().err == (
+        f"At {scene} (line 8, col 27): failed to instantiate bsdf plugin of type "
+        "\"test_broken\": TypeError: unsupported operand type(s) for +: 'int' and 'str'.\n")
+
+
+def test_python_warnings_of_a_command_are_plain_lines(capsys):
+    import warnings
+
+    assert run_command(lambda: warnings.warn("a deprecated option") or 0) == 0
+    assert capsys.readouterr().err == "warning: a deprecated option\n"

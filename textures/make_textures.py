@@ -18,7 +18,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import OpenImageIO as oiio
+
+from mitsuba_whitted.imageio import write_pixels
 
 SIZE = 512
 HERE = Path(__file__).resolve().parent
@@ -211,23 +212,12 @@ def to_uint8(image: np.ndarray) -> np.ndarray:
     return np.round(np.clip(image, 0.0, 1.0) * 255.0).astype(np.uint8)
 
 
-def write_png(path: Path, image: np.ndarray) -> None:
-    pixels = to_uint8(image)
-    height, width, channels = pixels.shape
-    output = oiio.ImageOutput.create(str(path))
-    if output is None:
-        raise RuntimeError(f"OpenImageIO cannot write {path}: {oiio.geterror()}")
-    output.open(str(path), oiio.ImageSpec(width, height, channels, "uint8"))
-    output.write_image(pixels)
-    output.close()
-
-
 DRAWINGS = {"lemons.png": draw_lemons, "pink_elephant.png": draw_pink_elephant}
 
 
 def main() -> None:
     for name, draw in DRAWINGS.items():
-        write_png(HERE / name, draw())
+        write_pixels(HERE / name, to_uint8(draw()))
         print(f"wrote {HERE / name}")
 
 

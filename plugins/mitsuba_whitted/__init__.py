@@ -25,7 +25,12 @@ from __future__ import annotations
 import importlib
 import sys
 
-from . import llvm
+from . import interrupt
+
+if interrupt.started_as("mitsuba_whitted.cli", "mitsuba-whitted"):
+    interrupt.end_quietly_on_ctrl_c("mitsuba-whitted")
+
+from . import llvm  # noqa: E402  (after Ctrl-C is handled)
 
 __version__ = "0.1.0"
 

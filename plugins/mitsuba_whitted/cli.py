@@ -10,9 +10,17 @@
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 import time
+import warnings
+from contextlib import contextmanager
 
+import mitsuba as mi
+
+from . import files
+from .errors import caused_by, one_sentence
+from .interrupt import InterruptGuard
 from .progress import Progress
 
 
@@ -30,41 +38,21 @@ def _parse_defines(pairs: list[str]) -> dict:
     return defines
 
 
-def one_sentence(error: BaseException) -> str:
-    """The useful line of an error raised through Mitsuba's plugin loader:
-    Mitsuba wraps a plugin's exception with the Python traceback text."""
-    text = str(error).strip()
-    lines = [line.strip() for line in text.splitlines() if line.strip()]
-    for line in reversed(lines):
-        for prefix in ("ParameterError: ", "VariantError: ", "LLVMError: ", "ValueError: "):
-            if line.startswith(prefix):
-                return line[len(prefix):]
-    if not lines:
-        return type(error).__name__
-    # A heading and its list ("Found unused parameters:" and "- $foo=1").
-    items = [line[1:].strip() for line in lines[1:] if line.startswith("-")]
-    if lines[0].endswith(":") and items:
-        return f"{lines[0]} {', '.join(items)}"
-    return lines[0]
 
 
 def _load_scene(path: str, defines: dict):
-    import os
-
     import mitsuba_whitted
 
-    if not os.path.isfile(path):
-        raise UsageError(f"mitsuba-whitted: scene file '{path}' does not exist.")
-    return mitsuba_whitted.load_file(path, **defines)
+    return mitsuba_whitted.load_file(files.check_readable(path), **defines)
 
 
 def command_render(args) -> int:
     import drjit as dr
-    import mitsuba as mi
 
     import mitsuba_whitted
-    from .imageio import write_image
+    from .imageio import check_image_path, write_image
 
+    check_image_path(args.output)
     mitsuba_whitted.set_variant(args.variant)
     started = time.perf_counter()
     scene = _load_scene(args.scene, _parse_defines(args.define))
@@ -90,7 +78,6 @@ def command_render(args) -> int:
 
 def command_info(args) -> int:
     import drjit as dr
-    import mitsuba as mi
 
     import mitsuba_whitted
     from . import llvm
@@ -113,8 +100,8 @@ def command_compare(args) -> int:
     from .distributed import backend
 
     options = CompareOptions.make(args.quick, args.reference_spp)
+    out = files.check_folder(args.out or f"compare-{Path(args.scene).stem}")
     mitsuba_whitted.set_variant(args.variant)
-    out = Path(args.out or f"compare-{Path(args.scene).stem}")
     with backend(args.workers, args.cluster) as runner:
         result = compare_scene(args.scene, out, options, _parse_defines(args.define),
                                progress=Progress(), backend=runner)
@@ -145,22 +132,21 @@ def command_render_many(args) -> int:
 
 def command_bench(args) -> int:
     import json
-    from pathlib import Path
 
     import mitsuba_whitted
     from . import bench
 
+    if args.json:
+        files.check_writable(args.json)
     mitsuba_whitted.set_variant(args.variant)
-    scene = Path(args.scene) if args.scene else bench.DEFAULT_SCENE
-    if not scene.is_file():
-        raise UsageError(f"mitsuba-whitted: scene file '{scene}' does not exist.")
+    scene = files.check_readable(args.scene or bench.DEFAULT_SCENE)
     defines = _parse_defines(args.define)
     settings = (bench.BenchSettings.quick(scene, defines) if args.quick
                 else bench.BenchSettings(scene, defines))
     results = bench.run(settings, report=lambda line: print(line, file=sys.stderr))
     print(bench.format_table(results))
     if args.json:
-        Path(args.json).write_text(json.dumps(results, indent=2))
+        files.write_text(args.json, json.dumps(results, indent=2))
     return 0
 
 
@@ -186,7 +172,7 @@ def add_cluster_options(parser: argparse.ArgumentParser) -> None:
 def build_parser() -> argparse.ArgumentParser:
     from . import DEFAULT_VARIANT
 
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="mitsuba-whitted",
         description="Whitted ray tracing for Mitsuba 3 scenes.")
     commands = parser.add_subparsers(dest="command", required=True)
@@ -237,15 +223,95 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class _Parser(argparse.ArgumentParser):
+    """Bad arguments in one line (argparse prints its usage first)."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: {message}; '{self.prog} --help' lists the options.\n")
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    try:
-        return args.run(args)
-    except UsageError as error:
-        print(error, file=sys.stderr)
-    except (RuntimeError, ValueError, OSError) as error:
-        print(one_sentence(error), file=sys.stderr)
+    return run_command(args.run, args)
+
+
+def erase_line(stream) -> str:
+    """What erases a progress line on a terminal (nothing elsewhere)."""
+    return "\r" + " " * 79 + "\r" if stream.isatty() else ""
+
+
+def run_command(function, *args, program: str = "mitsuba-whitted") -> int:
+    """``function(*args)`` as a command: its warnings on stderr in plain
+    lines, any error as one sentence (exit code 2), Ctrl-C as one line and
+    exit code 130 (see :mod:`.interrupt`), no partial file either way."""
+    def last_words():
+        files.discard_pending()
+        sys.stderr.write(f"{erase_line(sys.stderr)}{program}: interrupted.\n")
+
+    with InterruptGuard(last_words) as guard, plain_warnings():
+        try:
+            return function(*args)
+        except SystemExit:
+            raise
+        except BaseException as error:
+            if guard.requested.is_set() or caused_by(error, KeyboardInterrupt):
+                guard.stop()
+            print(one_sentence(error), file=sys.stderr)
     return 2
+
+
+class _PlainFormatter(mi.Formatter):
+    """"warning: MESSAGE", without the date, thread and source location."""
+
+    #: Mitsuba's ``mi.Log`` puts the calling Python function before the message.
+    CALLER = re.compile(r"^[\w<>]+(?:\(\))?: ")
+
+    def format(self, level, class_name, file_name, line, message):
+        if file_name.endswith(".py"):
+            message = self.CALLER.sub("", message)
+        word = "warning" if level == mi.LogLevel.Warn else level.name.lower()
+        return f"{word}: {message}"
+
+
+class _StderrAppender(mi.Appender):
+    """Log lines on stderr (Mitsuba's own appender writes them to stdout,
+    in colour even where it is not a terminal)."""
+
+    #: Logged by Mitsuba's own integrators on Ctrl-C; the command says
+    #: that it was interrupted in a line of its own.
+    WINDING_DOWN = "Received interrupt signal, winding down"
+
+    def append(self, level, text):
+        if self.WINDING_DOWN not in text:
+            sys.stderr.write(text + "\n")
+            sys.stderr.flush()
+
+    def log_progress(self, progress, name, formatted, eta, ptr=None):
+        pass  # the commands show their own progress
+
+
+@contextmanager
+def plain_warnings():
+    """Mitsuba's log and Python's warnings as plain lines on stderr."""
+    logger = mi.logger()
+    appenders = [logger.appender(i) for i in range(logger.appender_count())]
+    formatter = logger.formatter()
+    logger.clear_appenders()
+    logger.add_appender(_StderrAppender())
+    logger.set_formatter(_PlainFormatter())
+    with warnings.catch_warnings():
+        warnings.showwarning = _show_warning
+        try:
+            yield
+        finally:
+            logger.clear_appenders()
+            for appender in appenders:
+                logger.add_appender(appender)
+            logger.set_formatter(formatter)
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    sys.stderr.write(f"warning: {message}\n")
 
 
 if __name__ == "__main__":

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 
 class ParameterError(ValueError):
     """A scene parameter of one of this package's plugins is invalid."""
@@ -27,3 +29,122 @@ def check_choice(value: str, choices, plugin: str, parameter: str) -> str:
 
 class VariantError(RuntimeError):
     """The active Mitsuba variant cannot run this plugin."""
+
+
+def caused_by(error: BaseException, kind: type) -> bool:
+    """Whether an exception of type ``kind`` is ``error`` or in the chain of
+    its causes and contexts (Dr.Jit wraps a ``KeyboardInterrupt`` raised
+    inside ``dr.freeze`` or ``dr.custom`` into a ``RuntimeError``)."""
+    return any(isinstance(link, kind) for link in _chain(error))
+
+
+def _chain(error: BaseException):
+    seen = set()
+    while error is not None and id(error) not in seen:
+        seen.add(id(error))
+        yield error
+        error = error.__cause__ or error.__context__
+
+
+_TRACEBACK = "Traceback (most recent call last):"
+#: A wrapper's message that only points at the exception it wraps.
+_POINTS_AT_CAUSE = re.compile(r"\(see above\)\.?$")
+#: A C++ source location before a Mitsuba message: "[parser.cpp:451] ".
+_SOURCE_LOCATION = re.compile(r"\[[\w.]+\.(?:cpp|h|inl):\d+\] ")
+#: Dr.Jit's function names before its message: "drjit...__floordiv__(): jit_var_div(r0, r2): ".
+_DRJIT_CALLS = re.compile(r"^(?:(?:drjit\.[\w.]+|jit_\w+)\([^()]*\): )+")
+#: Exception classes whose name adds nothing to their message.
+_PLAIN_CLASSES = {"Exception", "RuntimeError", "ValueError", "OSError", "ParameterError",
+                  "VariantError", "LLVMError", "CompareError", "UsageError", "WriteError",
+                  "ImageWriteError", "ReadError"}
+#: Raised by this package's plugins with a sentence that names the plugin
+#: and what is wrong: Mitsuba's heading before it adds nothing.
+_OWN_SENTENCES = {"ParameterError", "VariantError", "LLVMError", "ValueError"}
+
+
+def root_cause(error: BaseException) -> BaseException:
+    """The exception that says what went wrong: ``error``, unless its
+    message is empty or only points at the exception it wraps ("(see
+    above)", as Dr.Jit's wrappers say); then that one, in turn."""
+    for link in _chain(error):
+        text = str(link).strip()
+        following = link.__cause__ or link.__context__
+        if following is None or (text and not _POINTS_AT_CAUSE.search(text)):
+            return link
+    return error
+
+
+def one_sentence(error: BaseException) -> str:
+    """One line that says what went wrong, for a person: the real cause
+    dug out of the wrappers and the nested messages (a Python traceback
+    inside a plugin-loading error, an ``<include>``'s error inside its
+    file's, nanobind's list of signatures) that Mitsuba and Dr.Jit make."""
+    cause = root_cause(error)
+    if isinstance(cause, RecursionError):
+        return _sentence(f"Python's recursion limit was reached ({cause})")
+    if isinstance(cause, MemoryError):
+        detail = f" ({cause})" if str(cause) else ""
+        return _sentence(f"the machine ran out of memory{detail}")
+    text = _plain_line(str(cause), type(cause).__name__)
+    return _sentence(text or f"{type(cause).__name__} without a message")
+
+
+def _plain_line(text: str, name: str) -> str:
+    text = _SOURCE_LOCATION.sub("", text)
+    lines = [line.rstrip() for line in text.strip().splitlines() if line.strip()]
+    if not lines:
+        return ""
+    # Mitsuba puts a plugin's Python traceback after its heading.
+    header = next((i for i, line in enumerate(lines) if _TRACEBACK in line), None)
+    if header is not None:
+        heading = lines[header].split(_TRACEBACK)[0]
+        inner_name, message = _last_exception(lines[header + 1:])
+        inner = _plain_line(message, inner_name)
+        return inner if inner_name in _OWN_SENTENCES else heading + inner
+    line = _innermost(lines)
+    if _DRJIT_CALLS.match(line):
+        line = "Dr.Jit: " + _DRJIT_CALLS.sub("", line)
+    if _passes_size_limit(line):
+        limit = "" if "2^32" in line else ": more than Dr.Jit's limit of 2^32 entries in one array"
+        line = f"{line.rstrip('.!')}{limit}; lower the film's resolution or its samples per pixel"
+    return line if name in _PLAIN_CLASSES else f"{name}: {line}"
+
+
+def _passes_size_limit(line: str) -> bool:
+    """Whether a message is about an array of 2^32 entries or more (Dr.Jit
+    names its limit; a tensor's size check shows the size before and after
+    it wrapped around 32 bits)."""
+    return "2^32" in line or ("size" in line and any(int(n) >= 1 << 32
+                                                      for n in re.findall(r"\d{10,}", line)))
+
+
+def _innermost(lines: list[str]) -> str:
+    """The line of a (possibly nested) message that names the cause."""
+    first = lines[0].strip()
+    # nanobind: "f(): incompatible function arguments. The following ..."
+    if "incompatible function arguments" in first:
+        invoked = next((line.strip() for line in lines if line.startswith("Invoked with")), "")
+        return f"{first.split('. ')[0]} ({invoked[0].lower() + invoked[1:]})" if invoked else first
+    # A heading and its list ("Found unused parameters:" and "- $foo=1").
+    items = [line.strip()[1:].strip() for line in lines[1:] if line.strip().startswith("-")]
+    if first.endswith(":") and items:
+        return f"{first} {', '.join(items)}"
+    # Mitsuba nests the error of an included file, a plugin or a stream
+    # after a heading that ends with a colon: the last line is the cause.
+    return lines[-1].strip() if first.endswith(":") else first
+
+
+def _last_exception(lines: list[str]) -> tuple[str, str]:
+    """Class name and message of the last exception of a formatted
+    traceback: what follows its last frame ("  File ...") and that
+    frame's indented source lines."""
+    frames = [i for i, line in enumerate(lines) if line.startswith("  File ")]
+    after = frames[-1] + 1 if frames else 0
+    start = next((i for i in range(after, len(lines)) if not lines[i].startswith(" ")), after)
+    name, _, message = "\n".join(lines[start:]).partition(": ")
+    return name.rsplit(".", 1)[-1], message
+
+
+def _sentence(text: str) -> str:
+    text = " ".join(text.split()).rstrip(":")
+    return text if text.endswith((".", "!", "?")) else text + "."

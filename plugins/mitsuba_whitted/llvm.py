@@ -22,6 +22,8 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
+from .files import write_text
+
 #: Versions known to abort Dr.Jit 1.5 on x86-64.
 BROKEN_BELOW = 17
 #: Versions known to work without a probe.
@@ -106,8 +108,7 @@ def probe(path: str) -> bool:
                                 capture_output=True, timeout=120)
         verdicts[key] = result.returncode == 0
         try:
-            cache.parent.mkdir(parents=True, exist_ok=True)
-            cache.write_text(json.dumps(verdicts))
+            write_text(cache, json.dumps(verdicts))
         except OSError:
             pass
     return bool(verdicts[key])

@@ -4,19 +4,20 @@ The key covers everything the reference depends on: the scene file's bytes,
 the bytes of every file it names (textures, meshes, includes), the ``-D``
 defines, the render settings, and the Mitsuba version and variant. Editing
 any of them gives a new key; nothing else does. Entries are ``.npz`` files
-named by the key, written atomically so an interrupted run leaves no half
-entry behind.
+named by the key, written whole or not at all (``files.write_atomically``),
+so an interrupted run leaves no half entry behind.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
-import os
 import re
 from pathlib import Path
 
 import numpy as np
+
+from ..files import write_atomically
 
 #: Attributes of a scene file that name other files it depends on.
 _FILE_REFERENCE = re.compile(
@@ -81,10 +82,7 @@ class ReferenceCache:
             return {name: data[name] for name in data.files}
 
     def store(self, key: str, arrays: dict) -> None:
-        self.directory.mkdir(parents=True, exist_ok=True)
-        partial = self.directory / f"{key}.partial.npz"
-        np.savez(partial, **arrays)
-        os.replace(partial, self.path(key))
+        write_atomically(self.path(key), lambda file: np.savez(file, **arrays))
 
     def get_or_compute(self, key: str, compute) -> dict:
         """The entry for ``key``, computed by ``compute()`` (a dict of

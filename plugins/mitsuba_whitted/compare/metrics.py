@@ -8,7 +8,11 @@ perceptual difference in [0, 1]; its HDR variant takes linear images.
 
 from __future__ import annotations
 
+import functools
 import math
+import pickle
+import subprocess
+import sys
 
 import numpy as np
 
@@ -62,13 +66,52 @@ def flip_available() -> bool:
 
 def flip_error(image: np.ndarray, reference: np.ndarray):
     """(mean, per-pixel map) of HDR-FLIP, or (nan, None) when the
-    ``flip-evaluator`` package is not installed."""
+    ``flip-evaluator`` package is not installed.
+
+    Computed in a worker process: FLIP's C++ keeps Python's global lock
+    for the whole of its run (seconds for a 600 x 600 image), and with it
+    a Ctrl-C (see ``interrupt.py``)."""
     if not flip_available():
         return math.nan, None
-    import flip_evaluator
+    reference, image = (np.ascontiguousarray(np.maximum(x[..., :3], 0), dtype=np.float32)
+                        for x in (reference, image))
+    return _flip_worker()(reference, image)
 
-    error_map, mean, _ = flip_evaluator.evaluate(
-        np.ascontiguousarray(np.maximum(reference[..., :3], 0), dtype=np.float32),
-        np.ascontiguousarray(np.maximum(image[..., :3], 0), dtype=np.float32),
-        "HDR", applyMagma=False)
-    return float(mean), np.asarray(error_map)[..., 0]
+
+#: Reads pickled pairs of images (reference, test) on stdin and writes
+#: the mean HDR-FLIP and its map of each to stdout, until stdin closes.
+_FLIP_WORKER = """
+import pickle, sys, numpy as np, flip_evaluator
+read, write = sys.stdin.buffer, sys.stdout.buffer
+while read.peek(1):
+    reference, image = pickle.load(read)
+    error_map, mean, _ = flip_evaluator.evaluate(reference, image, "HDR", applyMagma=False)
+    pickle.dump((float(mean), np.asarray(error_map)[..., 0]), write, protocol=5)
+    write.flush()
+"""
+
+
+class _FlipWorker:
+    """A process running ``_FLIP_WORKER``, in a session of its own (a
+    Ctrl-C at the terminal is for its parent); it ends when its parent
+    does, however that ends."""
+
+    def __init__(self):
+        self.process = subprocess.Popen([sys.executable, "-c", _FLIP_WORKER],
+                                        stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                        stderr=subprocess.PIPE, start_new_session=True)
+
+    def __call__(self, reference: np.ndarray, image: np.ndarray):
+        try:
+            pickle.dump((reference, image), self.process.stdin, protocol=5)
+            self.process.stdin.flush()
+            return pickle.load(self.process.stdout)
+        except (OSError, EOFError, pickle.UnpicklingError):
+            problem = self.process.stderr.read().decode(errors="replace").strip()
+            raise RuntimeError(f"FLIP's worker process failed: "
+                               f"{problem.splitlines()[-1] if problem else 'it gave no reason'}")
+
+
+@functools.cache
+def _flip_worker() -> _FlipWorker:
+    return _FlipWorker()

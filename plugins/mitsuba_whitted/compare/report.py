@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..files import write_atomically, write_text
 from ..imageio import write_image
 
 #: Widest PNG a report holds; larger renders are box-filtered down.
@@ -69,17 +70,12 @@ class MarkdownReport:
         self.lines += [f"![{alt}]({link})", ""]
 
     def write(self, name: str = "README.md") -> Path:
-        self.directory.mkdir(parents=True, exist_ok=True)
-        path = self.directory / name
-        path.write_text("\n".join(self.lines).rstrip() + "\n")
-        return path
+        return write_text(self.directory / name, "\n".join(self.lines).rstrip() + "\n")
 
     # ---------------------------------------------------------- images
 
     def _target(self, name: str) -> tuple[Path, str]:
-        path = self.directory / self.image_dir / name
-        path.parent.mkdir(parents=True, exist_ok=True)
-        return path, f"{self.image_dir}/{name}"
+        return self.directory / self.image_dir / name, f"{self.image_dir}/{name}"
 
     def image(self, name: str, image: np.ndarray) -> str:
         """Write a linear RGB image as an sRGB PNG; returns its link."""
@@ -105,8 +101,7 @@ class MarkdownReport:
         shown = axes.imshow(values, cmap=cmap, vmin=0, vmax=vmax, interpolation="nearest")
         axes.set_axis_off()
         figure.colorbar(shown, ax=axes, fraction=0.046, pad=0.04).set_label(label, fontsize=8)
-        figure.savefig(path, bbox_inches="tight", pad_inches=0.04)
-        plt.close(figure)
+        _save(figure, path, bbox_inches="tight", pad_inches=0.04)
         return link
 
     def speed_plot(self, name: str, points, title: str, noise_floor: float | None = None) -> str:
@@ -137,9 +132,16 @@ class MarkdownReport:
         axes.grid(True, which="both", alpha=0.3)
         axes.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0))
         figure.tight_layout()
-        figure.savefig(path)
-        plt.close(figure)
+        _save(figure, path)
         return link
+
+
+def _save(figure, path: Path, **options) -> None:
+    """A matplotlib figure as a PNG, written whole or not at all, then closed."""
+    try:
+        write_atomically(path, lambda file: figure.savefig(file, format="png", **options))
+    finally:
+        _pyplot().close(figure)
 
 
 def _pyplot():

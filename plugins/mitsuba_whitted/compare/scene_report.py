@@ -16,6 +16,7 @@ import mitsuba as mi
 import numpy as np
 
 from .. import load_file
+from ..files import check_readable, write_text
 from ..system import proc_field
 from ..distributed import SceneSource
 from .cache import ReferenceCache, cache_key
@@ -61,9 +62,7 @@ class SceneComparison:
 
 
 def load_scene(path: str | Path, defines: dict | None = None) -> mi.Scene:
-    path = Path(path)
-    if not path.is_file():
-        raise CompareError(f"mitsuba-whitted: scene file '{path}' does not exist.")
+    path = check_readable(path)
     scene = load_file(path, **(defines or {}))
     if not scene.sensors():
         raise CompareError(f"mitsuba-whitted: scene '{path}' has no sensor, "
@@ -182,7 +181,7 @@ def _write_report(out_dir, scene_path, defines, reference, points, results, keep
                   "relMSE against render time")
     _image_grid(report, reference, points, keep_linear)
     _missing_light(report, reference, points, results)
-    (Path(out_dir) / "results.json").write_text(json.dumps(results, indent=1))
+    write_text(Path(out_dir) / "results.json", json.dumps(results, indent=1))
     return report.write("report.md")
 
 

@@ -17,6 +17,8 @@ from contextlib import contextmanager
 import drjit as dr
 import mitsuba as mi
 
+from ..errors import caused_by
+
 
 @contextmanager
 def _no_garbage_collection():
@@ -90,6 +92,10 @@ class FrozenKernel:
                     return outputs
                 problem = "a replay returned arrays of the wrong width"
             except RuntimeError as error:
+                # Ctrl-C during a recording reaches here wrapped by Dr.Jit:
+                # it stops the render, and freezing stays on.
+                if caused_by(error, KeyboardInterrupt):
+                    raise
                 problem = str(error).splitlines()[0]
             self._disable(problem)
         if self.fallback is not None:

@@ -220,11 +220,12 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     """
 
     def __init__(self, props: mi.Properties):
-        # Read first: Mitsuba's base class reads ``hide_emitters`` too, and
+        # Refused before Mitsuba's base class warns about scalar variants.
+        _require_supported_variant()
+        # Read before the base class, which reads ``hide_emitters`` too and
         # refuses a wrong type with a message of its own.
         settings = {name: read(props, name) for name, read in SETTINGS.items()}
         super().__init__(props)
-        _require_supported_variant()
         self.shadows = check_choice(props.get("shadows", "physical"), SHADOW_MODES,
                                     PLUGIN_NAME, "shadows")
         self.aa = check_choice(props.get("aa", "none"), AA_MODES, PLUGIN_NAME, "aa")
@@ -523,20 +524,24 @@ class CameraShader:
             # The whole batch in one launch (every adaptive level after the
             # first): no copies in and out.
             radiance, alpha = self.tracer.trace_camera(self.sensor, positions, keys, lens)
-            self._report(total, total)
-            return radiance, alpha
-        radiance, alpha = dr.empty(mi.Color3f, total), dr.empty(mi.Float, total)
-        for start in range(0, total, self.batch):
-            stop = min(start + self.batch, total)
-            part = index_range(start, stop)
-            part_radiance, part_alpha = self.tracer.trace_camera(
-                self.sensor, dr.gather(mi.Point2f, positions, part),
-                dr.gather(mi.UInt32, keys, part),
-                None if lens is None else dr.gather(mi.Point2f, lens, part))
-            dr.scatter(radiance, part_radiance, part)
-            dr.scatter(alpha, part_alpha, part)
-            self._report(stop, total)
+        else:
+            radiance, alpha = dr.empty(mi.Color3f, total), dr.empty(mi.Float, total)
+            for start in range(0, total, self.batch):
+                stop = min(start + self.batch, total)
+                part = index_range(start, stop)
+                part_radiance, part_alpha = self.tracer.trace_camera(
+                    self.sensor, dr.gather(mi.Point2f, positions, part),
+                    dr.gather(mi.UInt32, keys, part),
+                    None if lens is None else dr.gather(mi.Point2f, lens, part))
+                dr.scatter(radiance, part_radiance, part)
+                dr.scatter(alpha, part_alpha, part)
+                self._report(stop, total)
         dr.eval(radiance, alpha)
+        # Wait here, where Dr.Jit lets other Python threads run: the
+        # samplers' next dr.compress would wait for these launches holding
+        # the GIL, and Ctrl-C (see interrupt.py) with it.
+        dr.sync_thread()
+        self._report(total, total)
         return radiance, alpha
 
     def _report(self, done: int, total: int) -> None:

@@ -1,0 +1,102 @@
+"""Ctrl-C on the command line: the process stops within about a second,
+says so in one line, exits with 130 and leaves no partial file.
+
+Python raises ``KeyboardInterrupt`` only when its main thread runs Python
+code, and a Dr.Jit launch, an LLVM compilation or a render of Mitsuba's
+own integrators keeps it in C++ for as long as they take (tens of seconds
+for a large one). So a watcher thread hears the signal at once, through
+``signal.set_wakeup_fd``, and gives the main thread :data:`GRACE` seconds
+to unwind (its ``finally`` blocks remove temporary files); if it is still
+busy then, the watcher removes the temporaries itself and ends the process.
+
+Either way the process ends with ``os._exit``: at a normal exit Dr.Jit
+would first finish the launches already queued, and report the arrays the
+interrupted frames still hold as leaks.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import sys
+import threading
+import time
+
+#: What shells report for a process stopped by SIGINT (128 + 2).
+EXIT_CODE = 128 + signal.SIGINT
+#: Seconds the main thread has to unwind before the watcher ends the process.
+GRACE = 0.5
+
+
+class InterruptGuard:
+    """While active, SIGINT raises ``KeyboardInterrupt`` once in the main
+    thread and ends the process (:meth:`stop`) at the latest :data:`GRACE`
+    seconds later. ``last_words()`` removes what a stopped process must not
+    leave behind and says that it stopped."""
+
+    def __init__(self, last_words):
+        self.last_words = last_words
+        self.requested = threading.Event()
+        self._stopping = threading.Lock()
+
+    def __enter__(self) -> "InterruptGuard":
+        self._read, self._write = os.pipe()
+        os.set_blocking(self._write, False)
+        self._previous_fd = signal.set_wakeup_fd(self._write, warn_on_full_buffer=False)
+        self._previous_handler = signal.signal(signal.SIGINT, self._raise_once)
+        threading.Thread(target=self._watch, name="interrupt watcher", daemon=True).start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        signal.signal(signal.SIGINT, self._previous_handler)
+        signal.set_wakeup_fd(self._previous_fd)
+        os.close(self._write)  # the watcher reads the end of the pipe and returns
+
+    def _raise_once(self, signum, frame) -> None:
+        # A second Ctrl-C must not break off the clean-up the first started.
+        if not self.requested.is_set():
+            self.requested.set()
+            raise KeyboardInterrupt
+
+    def _watch(self) -> None:
+        try:
+            while True:
+                signals = os.read(self._read, 64)
+                if not signals:
+                    return
+                if signal.SIGINT in signals:
+                    time.sleep(GRACE)
+                    self.stop()
+        finally:
+            os.close(self._read)
+
+    def stop(self) -> None:
+        """``last_words()``, then end the process with :data:`EXIT_CODE`.
+        Called from both threads; the first call ends the process and the
+        second waits for that."""
+        with self._stopping:
+            self.last_words()
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(EXIT_CODE)
+
+
+def started_as(module: str, script: str) -> bool:
+    """Whether this process is a command: ``script`` (a console script) or
+    ``python -m module``."""
+    argv = sys.orig_argv
+    return (os.path.basename(sys.argv[0]) == script
+            or (module in argv and argv[argv.index(module) - 1] == "-m"))
+
+
+def end_quietly_on_ctrl_c(program: str) -> None:
+    """Until a command's :class:`InterruptGuard` takes over, Ctrl-C ends the
+    process at once with one line: nothing is written yet, and a
+    ``KeyboardInterrupt`` raised while Python imports Dr.Jit and Mitsuba
+    ends in a traceback (or in a half-imported module's ``NameError``)."""
+    def end(signum, frame):
+        os.write(2, f"{program}: interrupted.\n".encode())
+        os._exit(EXIT_CODE)
+
+    signal.signal(signal.SIGINT, end)
+

@@ -1,0 +1,192 @@
+"""Ctrl-C: every command stops within two seconds, at any size and in any
+anti-aliasing mode, says so in one line, exits with 130 and leaves no
+partial file.
+
+Each command runs as a user runs it, its stderr on a terminal (a pty); the
+signal is sent 1 s after its first output there (the progress display, or
+the first progress line), so that the work, not Python's start-up, is what
+is interrupted."""
+
+import hashlib
+import os
+import pty
+import select
+import signal
+import subprocess
+import sys
+import time
+import tty
+from pathlib import Path
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+import pytest
+
+from mitsuba_whitted.integrators.frozen import FrozenKernel
+
+ROOT = Path(__file__).resolve().parent.parent
+SCENE = ROOT / "scenes" / "cosc363.xml"
+
+
+def interrupted(args, started_after: float = 1.0):
+    """Run ``python args`` with stderr on a pty; SIGINT ``started_after``
+    seconds after its first output there. (exit code, seconds from the
+    signal to the exit, all it wrote on stderr)."""
+    terminal, child_end = pty.openpty()
+    tty.setraw(child_end)  # the bytes as written: no "\r\n" for "\n"
+    process = subprocess.Popen([sys.executable, *args], stdin=subprocess.DEVNULL,
+                               stdout=subprocess.DEVNULL, stderr=child_end, cwd=ROOT)
+    os.close(child_end)
+    try:
+        output = _read(terminal, until_any=True, seconds=300)
+        assert output, "the command wrote nothing within 300 s"
+        output += _read(terminal, seconds=started_after)
+        assert process.poll() is None, "the command ended before it could be interrupted"
+        sent = time.monotonic()
+        process.send_signal(signal.SIGINT)
+        code = process.wait(timeout=60)
+        seconds = time.monotonic() - sent
+        output += _read(terminal, seconds=0.5)
+    finally:
+        if process.poll() is None:
+            process.kill()
+        os.close(terminal)
+    return code, seconds, output.decode(errors="replace")
+
+
+def _read(terminal: int, seconds: float, until_any: bool = False) -> bytes:
+    data = b""
+    deadline = time.monotonic() + seconds
+    while (left := deadline - time.monotonic()) > 0 and not (until_any and data):
+        if select.select([terminal], [], [], left)[0]:
+            try:
+                chunk = os.read(terminal, 65536)
+            except OSError:  # the command ended and closed the terminal
+                break
+            if not chunk:
+                break
+            data += chunk
+    return data
+
+
+def last_line(output: str) -> str:
+    """The last line as a terminal shows it (progress updates overwrite
+    each other with carriage returns)."""
+    return output.rstrip("\n").split("\n")[-1].split("\r")[-1]
+
+
+def assert_stopped(code, seconds, output, program="mitsuba-whitted"):
+    assert code == 130, output
+    assert seconds < 2, f"{seconds:.2f} s from Ctrl-C to the end"
+    assert last_line(output) == f"{program}: interrupted."
+    assert "Traceback" not in output and "leak" not in output, output
+
+
+@pytest.fixture
+def samples_scene(tmp_path):
+    """The report's scene with its anti-aliasing samples as defaults too."""
+    text = SCENE.read_text().replace("../textures/", f"{ROOT}/textures/")
+    text = text.replace('<default name="res" value="600"/>',
+                        '<default name="res" value="600"/>'
+                        '<default name="aa_samples" value="2"/>')
+    text = text.replace('<integer name="aa_max_depth" value="$aa_max_depth"/>',
+                        '<integer name="aa_max_depth" value="$aa_max_depth"/>'
+                        '<integer name="aa_samples" value="$aa_samples"/>')
+    path = tmp_path / "scene.xml"
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize("defines", [
+    ["res=3000", "aa=none"],
+    ["res=1200", "aa=grid", "aa_samples=6"],
+    ["res=2000", "aa=adaptive", "aa_threshold=0.02"],
+    ["res=2000", "aa=contrast", "aa_samples=8", "aa_threshold=0.05"],
+], ids=["none", "grid", "adaptive", "contrast"])
+def test_ctrl_c_stops_a_render(tmp_path, samples_scene, defines):
+    out = tmp_path / "out"
+    args = ["-m", "mitsuba_whitted.cli", "render", str(samples_scene), "-o", str(out / "x.png")]
+    for define in defines:
+        args += ["-D", define]
+    code, seconds, output = interrupted(args)
+    assert_stopped(code, seconds, output)
+    assert output.count("\n") == 1, output
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("after", [0.15, 0.4])
+def test_ctrl_c_while_the_command_starts(tmp_path, after):
+    """While Python imports Dr.Jit and Mitsuba (about half a second), before
+    the command's own handling is in place."""
+    process = subprocess.Popen([sys.executable, "-m", "mitsuba_whitted.cli", "render", str(SCENE),
+                                "-o", str(tmp_path / "x.png")], stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    time.sleep(after)
+    process.send_signal(signal.SIGINT)
+    _, stderr = process.communicate(timeout=60)
+    assert process.returncode == 130, stderr
+    assert stderr == "mitsuba-whitted: interrupted.\n"
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_ctrl_c_stops_compare(tmp_path):
+    out = tmp_path / "out"
+    code, seconds, output = interrupted(["-m", "mitsuba_whitted.cli", "compare", str(SCENE),
+                                         "--quick", "-D", "res=128", "--out", str(out)])
+    assert_stopped(code, seconds, output)
+    assert output.count("\n") == 1, output
+    # A reference finished before the signal is a whole cache entry.
+    for path in (p for p in out.rglob("*") if p.is_file()):
+        assert path.parent.name == "cache" and not path.name.startswith("."), path
+        np.load(path)["image"]
+
+
+def test_ctrl_c_stops_bench(tmp_path):
+    target = tmp_path / "bench.json"
+    code, seconds, output = interrupted(["-m", "mitsuba_whitted.cli", "bench", "--quick",
+                                         "--json", str(target)], started_after=3.0)
+    assert_stopped(code, seconds, output)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_ctrl_c_stops_validation_and_keeps_the_old_report():
+    report = ROOT / "validation" / "report"
+
+    def contents():
+        return {p.relative_to(report): hashlib.sha256(p.read_bytes()).hexdigest()
+                for p in report.rglob("*") if p.is_file()}
+
+    before = contents()
+    code, seconds, output = interrupted(["-m", "validation.run"], started_after=3.0)
+    assert_stopped(code, seconds, output, program="validation")
+    assert contents() == before
+    assert sorted(p.name for p in report.parent.iterdir() if p.name.startswith(".report")) == []
+
+
+class _Tracer:
+    """Whose frozen kernel is interrupted by Ctrl-C while it records."""
+
+    def __init__(self):
+        self.calls = 0
+        self.kernel = FrozenKernel(self.trace, "test tracer")
+
+    def trace(self, value):
+        self.calls += 1
+        if self.calls == 1:
+            raise KeyboardInterrupt
+        return value + 1
+
+
+def test_ctrl_c_while_a_kernel_is_frozen_is_not_swallowed():
+    """Dr.Jit wraps the KeyboardInterrupt in a RuntimeError, which a
+    frozen kernel took for a failure to freeze: it warned, stopped
+    freezing and ran the function again."""
+    tracer = _Tracer()
+    value = dr.arange(mi.Float, 8)
+    with pytest.raises(BaseException) as raised:
+        tracer.kernel(8, value)
+    assert isinstance(raised.value, KeyboardInterrupt) or isinstance(
+        raised.value.__cause__, KeyboardInterrupt)
+    assert tracer.calls == 1 and tracer.kernel.enabled
+    assert dr.all(tracer.kernel(8, value) == value + 1)
