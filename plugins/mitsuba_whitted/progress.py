@@ -2,9 +2,15 @@
 
 from __future__ import annotations
 
+import os
 import sys
 
 from tqdm import tqdm
+
+#: The size tqdm is given for a terminal that does not say its own (a new
+#: pseudo-terminal has none until one is set; tqdm would hide the bar below
+#: its zero rows).
+DEFAULT_SIZE = {"ncols": 80, "nrows": 24}
 
 
 class Progress:
@@ -20,9 +26,10 @@ class Progress:
     def __call__(self, done: int, total: int, what: str) -> None:
         if self.bar is None or total != self.bar.total or done < self.bar.n:
             self.finish()
+            size = {} if _sized(self.stream) else DEFAULT_SIZE
             self.bar = tqdm(total=total, desc=what, file=self.stream, leave=False,
-                            dynamic_ncols=True, mininterval=self.min_interval,
-                            disable=not self.stream.isatty())
+                            dynamic_ncols=not size, mininterval=self.min_interval,
+                            disable=not self.stream.isatty(), **size)
         self.bar.set_description_str(what, refresh=False)
         self.bar.update(done - self.bar.n)
 
@@ -30,3 +37,12 @@ class Progress:
         if self.bar is not None:
             self.bar.close()
             self.bar = None
+
+
+def _sized(stream) -> bool:
+    """Whether the terminal says how large it is."""
+    try:
+        size = os.get_terminal_size(stream.fileno())
+    except (AttributeError, OSError, ValueError):
+        return False
+    return size.columns > 0 and size.lines > 0
