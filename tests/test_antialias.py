@@ -18,7 +18,7 @@ from conftest import assert_finite
 from mitsuba_whitted.integrators.antialias import (AdaptiveSampler, Band, ContrastSampler,
                                                    SampleBudget, neighbourhood_contrast,
                                                    render_grid)
-from scenes import camera, integrator, rgb, scene
+from validation.scenes import camera, integrator, rgb, scene
 
 WIDTH, HEIGHT = 6, 4
 #: A vertical edge inside pixel column 2, a third of the way across:

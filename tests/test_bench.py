@@ -124,7 +124,7 @@ def _bound_of(description):
 def test_the_bound_of_a_light_no_hit_can_see():
     """A light under the floor adds no shadow ray (the floor faces away
     from it): its part of the replay is empty, next to the other light's."""
-    from scenes import camera, floor, integrator, point_light, scene
+    from validation.scenes import camera, floor, integrator, point_light, scene
     description = scene(floor(), point_light((0, 3, 0)), point_light((0, -3, 0)),
                         sensor=camera(origin=(0, 2, 4), size=16), whitted=integrator())
     bound, stats, hits = _bound_of(description)
@@ -136,7 +136,7 @@ def test_the_bound_of_a_light_no_hit_can_see():
 def test_the_bound_of_a_scene_without_shadow_rays():
     """Only a mirror under an environment: nothing to test, nothing to
     march (casting an empty batch would abort the process)."""
-    from scenes import camera, integrator, scene, sphere
+    from validation.scenes import camera, integrator, scene, sphere
     description = scene(sphere((0, 0, 0), 1.0, {"type": "conductor"}),
                         sensor=camera(size=16), whitted=integrator(),
                         env={"type": "constant"})

@@ -4,7 +4,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from scenes import camera, diffuse, rgb, scene, sphere
+from validation.scenes import camera, diffuse, rgb, scene, sphere
 from mitsuba_whitted.integrators.bsdf_query import (KIND_CODES, BsdfQuery, has_delta_lobe,
                                                     query_bsdf)
 

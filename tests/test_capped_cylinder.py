@@ -5,15 +5,15 @@ Tolerances (canonical space, where the cylinder has radius 1 and height 1):
 
 - ``BAND``: a ray may be classified hit/miss differently from the reference
   only when some decision of the reference lies within
-  ``BAND * (1 + max|o|)`` of its threshold (``margin`` in
-  ``reference.cylinder_f64``). The solve runs in float64: its decisions err
-  by ~1e-16 relative to the origin's size; 1e-12 leaves a factor 1e4 of
-  room and is 6e4 times below the float32 spacing of the origin, so no ray
-  that float32 inputs can tell apart from the threshold may disagree.
-  (Measured: no disagreement at all on any ray set.)
-- ``T_RELATIVE``: returned ``t`` is float32; rounding alone is 6e-8 relative
-  (measured worst: 6e-8). 1e-6 allows 16 ulp. A float32 solve fails this
-  (4e-6 near tangency), so it checks the precision choice.
+  ``BAND * (1 + max|o|)`` of its threshold (``margin`` of the oracle,
+  ``validation/oracles/cylinder.py``). The solve runs in float64: its
+  decisions err by ~1e-16 relative to the origin's size; 1e-12 leaves a
+  factor 1e4 of room and is 6e4 times below the float32 spacing of the
+  origin, so no ray that float32 inputs can tell apart from the threshold
+  may disagree.
+- ``T_RELATIVE``: returned ``t`` is float32; rounding alone is 6e-8
+  relative. 1e-6 allows 16 ulp. A float32 solve fails this (4e-6 near
+  tangency), so it checks the precision choice.
 - ``POINT_ERROR``: the re-projected point is float32 at unit scale (6e-8);
   1e-6 again. A float32 solve is off by 2e-3 for origins 1e4 away.
 - ``NORMAL_ERROR``: float32 normals of a float32 point: 1e-5 is 100 ulp.
@@ -29,7 +29,8 @@ from conftest import address, assert_finite
 from mitsuba_whitted.geometry import cylinder
 from mitsuba_whitted.jit import ALIGNMENT
 from mitsuba_whitted.shapes import capped_cylinder
-from reference import cylinder_f64 as reference
+from validation.oracles import cylinder as reference
+from validation.scenes import builtin_cylinder
 
 BAND = 1e-12
 T_RELATIVE = 1e-6
@@ -473,17 +474,9 @@ def test_proxy_hit_is_never_behind_the_exact_hit_and_uv_agree():
 
 
 def builtin_equivalent(shape):
-    """Mitsuba's open ``cylinder`` (axis z, 0..1) plus two ``disk``s (xy
-    plane), placed on the same solid."""
-    m = shape.canonical_to_world_matrix()
-    z_to_y = np.array(mi.ScalarTransform4f().rotate([1, 0, 0], -90).matrix, dtype=np.float64)
-    lift = np.eye(4)
-    lift[1, 3] = 1
-    transform = lambda matrix: mi.ScalarTransform4f(matrix.tolist())  # noqa: E731
-    return {"type": "scene",
-            "side": {"type": "cylinder", "to_world": transform(m @ z_to_y)},
-            "bottom": {"type": "disk", "to_world": transform(m @ z_to_y)},
-            "top": {"type": "disk", "to_world": transform(m @ lift @ z_to_y)}}
+    """Mitsuba's open ``cylinder`` plus two ``disk``s, placed on the same solid."""
+    to_world = mi.ScalarTransform4f(shape.canonical_to_world_matrix().tolist())
+    return {"type": "scene", **builtin_cylinder(to_world)}
 
 
 def pinhole_rays(eye, target, size=96, fov=0.25):

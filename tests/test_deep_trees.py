@@ -16,7 +16,7 @@ import pytest
 from conftest import assert_finite
 from mitsuba_whitted.integrators import whitted as whitted_module
 from mitsuba_whitted.integrators.shading import MAX_TREE_RAYS
-from scenes import camera, integrator, rgb, scene, sphere
+from validation.scenes import camera, integrator, rgb, scene, sphere
 
 LE, R = 0.25, 0.99
 TRACERS = {"depth-first tracer": False, "wavefront tracer": True}
@@ -55,9 +55,9 @@ def render(loaded, capture: bool, **settings):
 
 @pytest.mark.parametrize("capture", TRACERS.values(), ids=TRACERS.keys())
 def test_a_thousand_generations_are_traced_to_the_pruning(capture):
-    """max_depth 1000; the chain is pruned once r^k < 1e-4: K = 917 rays.
-    The wavefront tracer used to recurse once per generation and stop at
-    Python's recursion limit."""
+    """max_depth 1000; the chain is pruned once r^k < 1e-4: K = 917 rays,
+    far more generations than Python's recursion limit allows a tracer
+    that recurses once per generation."""
     image, stats = render(mirror_box(), capture, max_depth=1000, min_throughput=1e-4)
     rays = 1 + math.floor(math.log(1e-4) / math.log(R))
     assert rays == 917 and stats["generations"] == rays

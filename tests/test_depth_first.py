@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from conftest import assert_finite
-from scenes import camera, floor, glass_scene, integrator, point_light, rgb, scene, sphere, wall
+from validation.scenes import (camera, floor, glass_scene, integrator, point_light, rgb, scene,
+                              sphere, wall)
 from mitsuba_whitted.integrators.depth_first import (MAX_STACK, DepthFirstTracer, LaneStack,
                                                      stack_capacity)
 from mitsuba_whitted.integrators.wavefront import WavefrontTracer
@@ -260,7 +261,7 @@ def test_a_sensor_that_cannot_be_frozen_still_replays_frozen_kernels(kind):
     """Mitsuba 3.9.1 keeps the thin-lens and orthographic cameras' JIT
     members from ``dr.freeze``: their camera rays are made outside the
     stack kernel, whose frozen recording of rays from memory then replays
-    render after render (unfrozen, a render took 15 times as long)."""
+    render after render instead of being recorded anew each time."""
     _, tracer = _render_with(kind)
     kernels = (tracer._camera_kernel, tracer._kernel)
     replayed = [kernel for kernel in kernels if kernel.enabled and kernel.frozen.n_recordings]

@@ -26,7 +26,7 @@ from conftest import assert_finite
 from mitsuba_whitted.compare import equivalence_test
 from mitsuba_whitted.integrators import render_plan
 from mitsuba_whitted.integrators import whitted as whitted_module
-from scenes import integrator, scene
+from validation.scenes import integrator, scene
 
 SIZE, FOV, DISTANCE = 32, 30.0, 10.0
 #: Width of a pixel's footprint on the plane at DISTANCE.

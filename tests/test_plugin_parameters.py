@@ -19,7 +19,7 @@ import pytest
 
 from conftest import assert_finite
 from mitsuba_whitted.errors import ParameterError
-from scenes import camera, diffuse, floor, integrator, point_light, rgb, scene, sphere
+from validation.scenes import camera, diffuse, floor, integrator, point_light, rgb, scene, sphere
 
 LEMONS = str(Path(__file__).resolve().parent.parent / "textures" / "lemons.png")
 NAN, INF = math.nan, math.inf

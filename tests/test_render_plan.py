@@ -13,7 +13,8 @@ from mitsuba_whitted.errors import ParameterError
 from mitsuba_whitted.integrators import render_plan
 from mitsuba_whitted.integrators import whitted as whitted_module
 from mitsuba_whitted.integrators.render_plan import Demand, plan_render
-from scenes import camera, diffuse, floor, glass_scene, integrator, point_light, rgb, scene, sphere
+from validation.scenes import (camera, diffuse, floor, glass_scene, integrator, point_light, rgb,
+                              scene, sphere)
 
 GIB = 1 << 30
 

@@ -13,7 +13,7 @@ import pytest
 
 from conftest import assert_finite
 from mitsuba_whitted.errors import ParameterError
-from scenes import camera, diffuse, floor, integrator, point_light, rgb, scene, sphere
+from validation.scenes import camera, diffuse, floor, integrator, point_light, rgb, scene, sphere
 
 NAN, INF = math.nan, math.inf
 

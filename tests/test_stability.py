@@ -1,4 +1,4 @@
-"""The numerical-stability table (validation/stability.py) on its quick
+"""The numerical-stability table (validation/stability/) on its quick
 subset: every hard case must stay within its stated bound, and the
 comparisons must be able to fail."""
 
@@ -8,8 +8,8 @@ import re
 import numpy as np
 import pytest
 
-from validation import stability
-from validation.stability import run_stability, stability_markdown
+from validation.stability import acne, cylinder, glass, run_stability, stability_markdown
+from validation.stability.common import SEED
 
 #: Cases that fail today, for reasons outside this table's code (see the
 #: case docstrings); strict, so a fix shows up as an unexpected pass.
@@ -81,29 +81,29 @@ def naive_float32_cylinder(o, d):
 def test_cylinder_comparison_fails_a_naive_float32_solve():
     """The far-away case's comparison, fed the textbook float32 quadratic:
     its discriminant cancels from 1e4 away, so it must fail the bound."""
-    o, d = stability.far_bundle(1024, np.random.default_rng(stability.SEED), 1e4)
-    scene = stability.cylinder_scene()
-    ref = stability.cylinder_reference(scene, o, d)
+    o, d = cylinder.far_bundle(1024, np.random.default_rng(SEED), 1e4)
+    scene = cylinder.cylinder_scene()
+    ref = cylinder.cylinder_reference(scene, o, d)
     hit, t, n = naive_float32_cylinder(o, d)
-    result = stability.judge_cylinder("naive", "float32 quadratic", ref, hit, t, n,
-                                      proxy=np.ones(len(o), bool))
+    result = cylinder.judge_cylinder("naive", "float32 quadratic", ref, hit, t, n,
+                                     proxy=np.ones(len(o), bool))
     assert not result.passed
     assert result.worst_error > 100 * result.bound or result.disagreements > 0
     # The same comparison passes the integrator's own exact path on these rays.
-    good = stability.judge_cylinder("exact", "", ref, *stability.exact_cylinder_hits(scene, o, d))
+    good = cylinder.judge_cylinder("exact", "", ref, *cylinder.exact_cylinder_hits(scene, o, d))
     assert good.passed
 
 
 def test_fresnel_comparison_fails_a_wrong_formula():
     """Schlick's approximation in place of the exact Fresnel equations must
     fail the per-ray allowance near the critical angle."""
-    theta = math.asin(1 / stability.IOR) - np.logspace(-6, -1, 200)
+    theta = math.asin(1 / glass.IOR) - np.logspace(-6, -1, 200)
     cos_i = np.cos(theta).astype(np.float32).astype(np.float64)
     # Schlick for light leaving the denser medium uses the transmitted cosine.
-    cos_t = np.sqrt(1 - (stability.IOR * np.sin(theta)) ** 2)
-    r0 = ((stability.IOR - 1) / (stability.IOR + 1)) ** 2
+    cos_t = np.sqrt(1 - (glass.IOR * np.sin(theta)) ** 2)
+    r0 = ((glass.IOR - 1) / (glass.IOR + 1)) ** 2
     schlick = r0 + (1 - r0) * (1 - cos_t) ** 5
-    worst, _ = stability.judge_fresnel(cos_i, schlick, (1 - schlick) * stability.IOR ** 2)
+    worst, _ = glass.judge_fresnel(cos_i, schlick, (1 - schlick) * glass.IOR ** 2)
     assert worst > 1
 
 
@@ -113,6 +113,6 @@ def test_acne_case_at_the_report_size(scale):
     cylinder reach edges that the quick subset's pixels miss: the scaled
     image must still match the scale-1 one rendered with offsets of the
     same relative size."""
-    unscaled = stability.render(stability.glass_scene(1.0, 96))
-    result = stability.acne_at_scale(96, scale, unscaled)
+    unscaled = acne.render(acne.scaled_glass_scene(1.0, 96))
+    result = acne.acne_at_scale(96, scale, unscaled)
     assert result.disagreements == 0 and result.passed, result.details

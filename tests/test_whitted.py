@@ -14,7 +14,7 @@ from conftest import assert_finite
 from mitsuba_whitted.integrators.scene_needs import analyse
 from mitsuba_whitted.integrators.scene_ref import SceneRef
 from mitsuba_whitted.integrators.depth_first import LAUNCH_FACTOR
-from scenes import (camera, diffuse, floor, glass_scene, integrator, point_light, rgb, scene,
+from validation.scenes import (camera, diffuse, floor, glass_scene, integrator, point_light, rgb, scene,
                     sphere)
 
 TINT = (0.8, 0.5, 0.3)

@@ -27,7 +27,6 @@ import sys
 import time
 from pathlib import Path
 
-import drjit as dr
 import numpy as np
 
 import mitsuba_whitted

@@ -18,8 +18,9 @@ import numpy as np
 
 from mitsuba_whitted.camera import camera_rays, pixel_centres
 from mitsuba_whitted.compare import path_batches
-from validation import stability
-from validation.scenes import builtin_cylinder
+from validation import scenes
+from validation.stability import cylinder
+from validation.stability.common import SEED, float32_rays, unit_rows
 
 # --- blendbsdf with a delta lobe ----------------------------------------------
 
@@ -33,14 +34,10 @@ COSINES = (1.0, 0.75, 0.5, 0.2)
 BLEND_BATCHES, BLEND_SPP = 16, 256
 
 
-def _rgb(value) -> dict:
-    return {"type": "rgb", "value": list(value)}
-
-
 def blend_bsdf(diffuse=BLACK, weight=MIRROR_WEIGHT) -> dict:
     """A diffuse lobe blended with a perfect mirror of weight ``weight``."""
     return {"type": "blendbsdf", "weight": weight,
-            "bsdf_0": {"type": "diffuse", "reflectance": _rgb(diffuse)},
+            "bsdf_0": scenes.diffuse(*diffuse),
             "bsdf_1": {"type": "conductor", "material": "none"}}
 
 
@@ -48,14 +45,9 @@ def blend_plane_scene(diffuse=BLACK, weight=MIRROR_WEIGHT, size: int = 128) -> d
     """The plane y = 0 of the blend under a uniform sky of radiance 1, seen
     obliquely from above (incidence cosines from 0.3 to 0.95)."""
     plane = mi.ScalarTransform4f().rotate([1, 0, 0], -90).scale(40)
-    return {"type": "scene",
-            "sensor": {"type": "perspective", "fov": 60,
-                       "to_world": mi.ScalarTransform4f().look_at(
-                           origin=[0, 2, 3], target=[0, 0, -1], up=[0, 1, 0]),
-                       "film": {"type": "hdrfilm", "width": size, "height": size,
-                                "rfilter": {"type": "box"}}},
+    return {"type": "scene", "sensor": scenes.camera((0, 2, 3), (0, 0, -1), fov=60, size=size),
             "plane": {"type": "rectangle", "to_world": plane, "bsdf": blend_bsdf(diffuse, weight)},
-            "sky": {"type": "constant", "radiance": _rgb((1, 1, 1))}}
+            "sky": scenes.sky(1)}
 
 
 def mirror_factor(cos, diffuse, weight):
@@ -155,7 +147,7 @@ class CylinderRow:
 def _disagreements(ref: dict, hit: np.ndarray, t: np.ndarray):
     """Hit/miss disagreements with the float64 reference outside its band,
     and the largest error in t where both hit."""
-    near = ref["margin"] < stability.CYLINDER_BAND
+    near = ref["margin"] < cylinder.CYLINDER_BAND
     both = hit & ref["hit"]
     worst = float(np.abs(t[both] - ref["t"][both]).max()) if both.any() else math.nan
     return int(((hit != ref["hit"]) & ~near).sum()), worst
@@ -164,8 +156,8 @@ def _disagreements(ref: dict, hit: np.ndarray, t: np.ndarray):
 def builtin_hits(to_world, o: np.ndarray, d: np.ndarray):
     """Mitsuba's cylinder and disks on the canonical solid placed by
     ``to_world``: hit and t of the rays."""
-    scene = mi.load_dict({"type": "scene", **builtin_cylinder(to_world)})
-    si = scene.ray_intersect(stability._ray(o, d))
+    scene = mi.load_dict({"type": "scene", **scenes.builtin_cylinder(to_world)})
+    si = scene.ray_intersect(float32_rays(o, d))
     return np.array(si.is_valid()), np.array(si.t, dtype=np.float64)
 
 
@@ -173,16 +165,16 @@ def compare_cylinders(label: str, o: np.ndarray, d: np.ndarray, to_world=None) -
     """Mitsuba's cylinder and the exact capped cylinder (as Whitted sees
     it) on the same float32 rays, against the float64 reference."""
     to_world = to_world or mi.ScalarTransform4f()
-    capped = stability.cylinder_scene(to_world=to_world)
-    ref = stability.cylinder_reference(capped, o, d)
-    hit, t, _, _ = stability.exact_cylinder_hits(capped, o, d)
+    capped = cylinder.cylinder_scene(to_world=to_world)
+    ref = cylinder.cylinder_reference(capped, o, d)
+    hit, t, _, _ = cylinder.exact_cylinder_hits(capped, o, d)
     builtin_hit, builtin_t = builtin_hits(to_world, o, d)
     return CylinderRow(label, len(o), int(ref["hit"].sum()), int(builtin_hit.sum()),
                        *_disagreements(ref, builtin_hit, builtin_t), *_disagreements(ref, hit, t))
 
 
 def cylinder_far_away(distance: float, rays: int = 4096) -> CylinderRow:
-    o, d = stability.far_bundle(rays, np.random.default_rng(stability.SEED), distance)
+    o, d = cylinder.far_bundle(rays, np.random.default_rng(SEED), distance)
     return compare_cylinders(f"from {distance:g} radii", o, d)
 
 
@@ -197,10 +189,10 @@ def cylinder_rotated(rays: int = 4096) -> CylinderRow:
     its matrix, Mitsuba's cylinder and disks use the inverse ``rotate``
     stored with it (its transpose)."""
     to_world = non_unit_rotation()
-    o, d = stability.far_bundle(rays, np.random.default_rng(stability.SEED), 10.0)
+    o, d = cylinder.far_bundle(rays, np.random.default_rng(SEED), 10.0)
     matrix = np.array(to_world.matrix, dtype=np.float64)
     o = o @ matrix[:3, :3].T + matrix[:3, 3]
-    d = stability._unit(d @ matrix[:3, :3].T)
+    d = unit_rows(d @ matrix[:3, :3].T)
     return compare_cylinders("rotated about (1, 1, 0)", o, d, to_world)
 
 
@@ -208,20 +200,16 @@ def cylinder_scene(capped: bool, to_world, eye, target, fov: float, size: int = 
     """The solid placed by ``to_world`` (the capped cylinder, or Mitsuba's
     cylinder and disks) seen from ``eye``, lit by a point light beside the
     eye whose intensity grows with the square of the distance."""
-    material = {"type": "diffuse", "reflectance": _rgb((0.7, 0.6, 0.2))}
+    material = scenes.diffuse(0.7, 0.6, 0.2)
     solid = ({"solid": {"type": "capped_cylinder", "to_world": to_world, "bsdf": material}}
-             if capped else builtin_cylinder(to_world, material))
+             if capped else scenes.builtin_cylinder(to_world, material))
     eye, target = np.asarray(eye, dtype=np.float64), np.asarray(target, dtype=np.float64)
     distance = float(np.linalg.norm(eye - target))
     light = eye + distance * np.array([0.4, 0.6, 0.0])
     return {"type": "scene", **solid,
-            "sensor": {"type": "perspective", "fov": fov, "far_clip": 10 * distance,
-                       "to_world": mi.ScalarTransform4f().look_at(
-                           origin=list(eye), target=list(target), up=[0, 1, 0]),
-                       "film": {"type": "hdrfilm", "width": size, "height": size,
-                                "rfilter": {"type": "box"}}},
-            "light": {"type": "point", "position": list(light),
-                      "intensity": _rgb([8 * distance ** 2] * 3)}}
+            "sensor": scenes.camera(list(eye), list(target), fov=fov, size=size,
+                                    far_clip=10 * distance),
+            "light": scenes.point_light(light, 8 * distance ** 2)}
 
 
 def far_views(distance: float = CYLINDER_DISTANCES[-1]):
@@ -247,7 +235,7 @@ def reference_mask(scene: mi.Scene) -> np.ndarray:
     sensor = scene.sensors()[0]
     ray, _ = camera_rays(sensor, pixel_centres(sensor.film()))
     o, d = np.array(ray.o, dtype=np.float64).T, np.array(ray.d, dtype=np.float64).T
-    hit = stability.cylinder_reference(scene, o, d)["hit"]
+    hit = cylinder.cylinder_reference(scene, o, d)["hit"]
     width, height = sensor.film().crop_size()
     return np.repeat(hit.reshape(height, width, 1).astype(np.float64), 3, axis=2)
 
@@ -266,7 +254,7 @@ PASS_THROUGH = {
                                     "ext_ior": 1.0}, (1 - 2 * _THIN_R0 / (1 + _THIN_R0)) ** 2),
     "index-matched dielectric, transmittance 0.8": (
         {"type": "dielectric", "int_ior": 1.0, "ext_ior": 1.0,
-         "specular_transmittance": _rgb((0.8, 0.8, 0.8))}, 0.8 ** 2),
+         "specular_transmittance": scenes.rgb(0.8, 0.8, 0.8)}, 0.8 ** 2),
 }
 LAMP_HEIGHT, BALL_HEIGHT, BALL_RADIUS, BALL_SPACING = 6.0, 1.5, 0.35, 1.0
 
@@ -279,20 +267,13 @@ def pass_through_scene(with_balls: bool = True, size: int = 128) -> dict:
     """A floor lit by a point light above a row of balls, one of each of
     the ``PASS_THROUGH`` surfaces."""
     floor = mi.ScalarTransform4f().rotate([1, 0, 0], -90).scale(4)
-    scene = {"type": "scene",
-             "sensor": {"type": "perspective", "fov": 45,
-                        "to_world": mi.ScalarTransform4f().look_at(
-                            origin=[0, 2.0, 6.0], target=[0, 0, 0], up=[0, 1, 0]),
-                        "film": {"type": "hdrfilm", "width": size, "height": size,
-                                 "rfilter": {"type": "box"}}},
+    scene = {"type": "scene", "sensor": scenes.camera((0, 2.0, 6.0), fov=45, size=size),
              "floor": {"type": "rectangle", "to_world": floor,
-                       "bsdf": {"type": "diffuse", "reflectance": _rgb((0.6, 0.6, 0.6))}},
-             "lamp": {"type": "point", "position": [0, LAMP_HEIGHT, 0],
-                      "intensity": _rgb((40, 40, 40))}}
+                       "bsdf": scenes.diffuse(0.6, 0.6, 0.6)},
+             "lamp": scenes.point_light((0, LAMP_HEIGHT, 0), 40)}
     if with_balls:
         for index, ((bsdf, _), centre) in enumerate(zip(PASS_THROUGH.values(), ball_positions())):
-            scene[f"ball_{index}"] = {"type": "sphere", "center": list(centre),
-                                      "radius": BALL_RADIUS, "bsdf": bsdf}
+            scene[f"ball_{index}"] = scenes.sphere(centre, BALL_RADIUS, bsdf)
     return scene
 
 

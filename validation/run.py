@@ -16,31 +16,32 @@ import mitsuba_whitted
 import mitsuba as mi
 import numpy as np
 
-from mitsuba_whitted.camera import camera_rays, pixel_centres
 from mitsuba_whitted.cli import add_cluster_options, run_command
 from mitsuba_whitted.compare import (CompareOptions, ReferenceCache, cache_key, cached_reference,
                                      compare_scene, equivalence_test, flip_error, luminance,
                                      missing_energy_share, missing_light, noise_rel_mse,
-                                     path_batches, rel_mse, scene_whitted_settings,
-                                     timed_render,                                      whitted_batches)
+                                     rel_mse, scene_whitted_settings, timed_render,
+                                     whitted_batches)
 from mitsuba_whitted.compare.report import MarkdownReport, number
 from mitsuba_whitted.compare.scene_report import machine
 from mitsuba_whitted.files import replaced_folder
 from mitsuba_whitted.compare.sweep import speedup_text
 from mitsuba_whitted.distributed import SceneSource, backend
 from mitsuba_whitted.progress import Progress
-from validation import reference_errors, stability
-from validation.scenes import (BLEND_DIFFUSE, BLEND_WEIGHT, REPORT_SCENE, SPEED,
-                               EquivalenceCase, blend_scene, equivalence_cases)
+from validation import reference_errors
+from validation.equivalence import (ALPHA, BLEND_DIFFUSE, BLEND_WEIGHT, blend_scene,
+                                    equivalence_cases, equivalence_path, equivalence_rays,
+                                    run_equivalence)
+from validation.scenes import REPORT_SCENE, SPEED
 from validation.stability import run_stability, stability_markdown
+from validation.stability.cylinder import CYLINDER_BAND
 
 HERE = Path(__file__).resolve().parent
 REPORT = HERE / "report"
 CACHE = HERE / "cache"
 
-#: Equivalence test: batches x spp path samples per pixel-centre ray, and
-#: the family-wise false-alarm rate (the one the test suite uses).
-BATCHES, SPP, ALPHA = 32, 64, 1e-3
+#: Equivalence test: batches x spp path samples per pixel-centre ray.
+BATCHES, SPP = 32, 64
 #: The report's scene: reference resolution and samples per pixel, chosen
 #: so that the whole report renders in well under 20 minutes on 2 cores.
 SCENE_RES, SCENE_SPP = 300, 4096
@@ -95,33 +96,6 @@ def write_report(folder: Path, cache: ReferenceCache, started: float, runner) ->
 
 # ------------------------------------------------------------------ equivalence
 
-def equivalence_rays(case: EquivalenceCase):
-    """The Whitted integrator of a case, its scene and pixel-centre rays."""
-    settings = {"max_depth": 12, "min_throughput": 0.0, "emitter_samples": 16, **case.settings}
-    whitted_scene = mi.load_dict(case.whitted_scene)
-    sensor = whitted_scene.sensors()[0]
-    ray, _ = camera_rays(sensor, pixel_centres(sensor.film()))
-    return mi.load_dict({"type": "whitted", **settings}), whitted_scene, ray
-
-
-def equivalence_path(case: EquivalenceCase, ray, cache: ReferenceCache) -> np.ndarray:
-    """The cached path batches of a case along ``ray``."""
-    depth = {"max_depth": 12, **case.settings}["max_depth"]
-    path_settings = {"type": "path", "max_depth": depth, "rr_depth": 1000}
-    scene = case.path_scene or case.whitted_scene
-    key = cache_key(kind="equivalence", scene=scene, batches=BATCHES, spp=SPP,
-                    integrator=path_settings)
-    return cache.get_or_compute(key, lambda: {"batches": path_batches(
-        mi.load_dict(scene), mi.load_dict(path_settings), ray, BATCHES, SPP)})["batches"]
-
-
-def run_equivalence(case: EquivalenceCase, cache: ReferenceCache):
-    """The equivalence test of one case; the path batches are cached."""
-    whitted, scene, ray = equivalence_rays(case)
-    return equivalence_test(whitted_batches(scene, whitted, ray, case.seeds),
-                            equivalence_path(case, ray, cache), ALPHA)
-
-
 def equivalence_section(report: MarkdownReport, cache: ReferenceCache) -> None:
     report.heading("1. Equivalence: where Whitted and path tracing agree")
     report.paragraph(
@@ -137,7 +111,7 @@ def equivalence_section(report: MarkdownReport, cache: ReferenceCache) -> None:
         "two rows are broken on purpose and must be rejected.")
     rows = []
     for case in equivalence_cases():
-        result = run_equivalence(case, cache)
+        result = run_equivalence(case, BATCHES, SPP, cache)
         verdict = "agree" if result.passed else "differ"
         expected = result.passed == case.expect_agree
         rows.append([case.name, case.checks, result.tests, result.rejected,
@@ -347,12 +321,12 @@ def cylinder_section(report: MarkdownReport, cache: ReferenceCache) -> None:
     report.paragraph(
         "The solid of the capped cylinder (radius 1, height 1) as Mitsuba's `cylinder` plus two "
         "`disk`s, and as this package's `capped_cylinder` (what Whitted intersects), against "
-        "the long-double reference (`tests/reference/cylinder_f64.py`) on the same float32 "
+        "the long-double reference (`validation/oracles/cylinder.py`) on the same float32 "
         "rays: a bundle from 10, 1000 and 10^4 radii away aimed over the solid's bounding box "
         "(as the stability case *cylinder: from 1e4 away*), and the bundle from 10 radii with "
         "solid and rays placed by `ScalarTransform4f().rotate([1, 1, 0], 35)` (an XML "
         "`<rotate x=\"1\" y=\"1\" angle=\"35\"/>` makes the same). Disagreements are "
-        f"hit/miss flips of rays farther than {stability.CYLINDER_BAND:g} from a tangency or "
+        f"hit/miss flips of rays farther than {CYLINDER_BAND:g} from a tangency or "
         "rim. *Causes*: `src/shapes/cylinder.cpp`, `Cylinder::ray_intersect_preliminary_impl`, "
         "solves in float32 in the differentiable and CUDA variants (`Value` is float32 there): "
         "it forms `C = ox^2 + oy^2 - r^2` and `B^2 - 4AC`, whose terms are of size |o|^2; once "
@@ -391,7 +365,7 @@ def blend_equivalence_section(report: MarkdownReport, cache: ReferenceCache) -> 
     report.heading("5.3 The same `blendbsdf` error in the equivalence scene *blend*", level=3)
     case = next(c for c in equivalence_cases() if c.name == "blend")
     whitted, scene, ray = equivalence_rays(case)
-    path = equivalence_path(case, ray, cache)
+    path = equivalence_path(case, ray, BATCHES, SPP, cache)
     ours = whitted_batches(scene, whitted, ray, case.seeds)
     mirror = whitted_batches(mi.load_dict(blend_scene(reference_errors.BLACK)), whitted, ray,
                              case.seeds).mean(axis=0)

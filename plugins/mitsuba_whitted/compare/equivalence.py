@@ -25,8 +25,6 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..camera import camera_rays, pixel_centres
-
 
 def t_quantile(p: float, dof):
     """Upper ``p`` quantile of Student's t with ``dof`` degrees of freedom
@@ -133,15 +131,3 @@ def whitted_batches(scene: mi.Scene, integrator, ray, seeds=(0,)) -> np.ndarray:
         radiance, _ = integrator.trace_rays(scene, ray, seed)
         result[index] = np.array(radiance).T
     return result
-
-
-def pixel_centre_equivalence(scene: mi.Scene, whitted, path, batches: int = 16,
-                             spp: int = 64, whitted_seeds=(0,), alpha: float = 1e-3,
-                             seed: int = 0) -> EquivalenceResult:
-    """Equivalence test of two integrators on the pixel-centre rays of the
-    scene's first sensor."""
-    sensor = scene.sensors()[0]
-    ray, _ = camera_rays(sensor, pixel_centres(sensor.film()))
-    return equivalence_test(whitted_batches(scene, whitted, ray, whitted_seeds),
-                            path_batches(scene, path, ray, batches, spp, seed), alpha)
-

@@ -1,11 +1,12 @@
-"""Plain numpy reference for rays against the canonical capped cylinder
+"""Long-double oracle for rays against the canonical capped cylinder
 (``x^2 + z^2 <= 1``, ``0 <= y <= 1``).
 
-Written apart from the Dr.Jit code and with another method: the report's
-candidate formulation. Every crossing of a surface is a candidate (the two
-roots of the textbook quadratic, kept when their height lies in the slab;
-the two cap planes, kept when the point lies in the unit disk), and the hit
-is the smallest candidate in ``(t_min, t_max]``. It runs in ``np.longdouble``
+Written apart from the Dr.Jit code and with another method: the candidate
+formulation of the COSC363 ray tracer's report, which the package ports.
+Every crossing of a surface is a candidate (the two roots of the textbook
+quadratic, kept when their height lies in the slab; the two cap planes,
+kept when the point lies in the unit disk), and the hit is the smallest
+candidate in ``(t_min, t_max]``. It runs in ``np.longdouble``
 (64-bit mantissa on x86, where even the naive discriminant at an origin 1e6
 away keeps about 7 digits), with the side listed first so that a tie at the
 rim goes to the side, as in the implementation's documented convention.
@@ -95,6 +96,20 @@ def intersect(o, d, t_min, t_max=np.inf):
         "n": _normal(p, best_part),
         "margin": margin,
     }
+
+
+def intersect_placed(world_to_canonical, o, d, t_min=0.0, t_max=np.inf):
+    """:func:`intersect` of world rays with the solid that the 4x4 matrix
+    ``world_to_canonical`` maps onto the canonical one: the rays are mapped
+    in float64 (an affine map keeps ``t``), and ``n_world`` holds the
+    normal mapped back (by the inverse transpose) and normalised."""
+    m = np.asarray(world_to_canonical, dtype=np.float64)
+    o, d = np.asarray(o, dtype=np.float64), np.asarray(d, dtype=np.float64)
+    hit = intersect(o @ m[:3, :3].T + m[:3, 3], d @ m[:3, :3].T, t_min, t_max)
+    n_world = hit["n"] @ m[:3, :3]
+    length = np.linalg.norm(n_world, axis=1, keepdims=True)
+    hit["n_world"] = n_world / np.where(length > 0, length, 1)
+    return hit
 
 
 def _onto_surface(p, part):
