@@ -148,3 +148,7 @@ def _last_exception(lines: list[str]) -> tuple[str, str]:
 def _sentence(text: str) -> str:
     text = " ".join(text.split()).rstrip(":")
     return text if text.endswith((".", "!", "?")) else text + "."
+
+
+class ClusterError(RuntimeError):
+    """The cluster cannot run the job, said in one sentence."""

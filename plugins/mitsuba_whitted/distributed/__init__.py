@@ -16,7 +16,8 @@ whose order changes from run to run, even in one process (last bits of
 about 1e-6 relative).
 """
 
-from .backends import ClusterError, InProcess, backend, in_order, run_job
+from ..errors import ClusterError
+from .backends import InProcess, backend, in_order, run_job
 from .scene import SceneBundle, SceneShippingError, SceneSource
 from .task import Environment, Task
 

@@ -18,11 +18,8 @@ from __future__ import annotations
 import contextlib
 import os
 
+from ..errors import ClusterError
 from .task import make_integrator, render_task
-
-
-class ClusterError(RuntimeError):
-    """The cluster cannot run the job, said in one sentence."""
 
 
 class InProcess:

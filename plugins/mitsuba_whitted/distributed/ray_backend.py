@@ -31,7 +31,7 @@ from collections import deque
 import ray
 import ray.exceptions
 
-from .backends import ClusterError
+from ..errors import ClusterError
 from .scene import load_bundle
 from .task import Environment, make_integrator, prepare_process, render_task
 

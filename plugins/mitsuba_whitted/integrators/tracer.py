@@ -1,4 +1,4 @@
-"""What the two ray-tree tracers share, and the choice between them.
+"""What the two ray-tree tracers share.
 
 A tracer turns camera samples into radiance: ``trace(rays)`` walks the
 Whitted ray tree of each ray (:mod:`.shading` says what a hit computes).
@@ -10,9 +10,8 @@ Two implementations stand side by side over the base here:
   compacted between generations: any depth, and every generation's rays
   can be kept (``captured``) for the bench to replay.
 
-:func:`build_tracer` assembles a tracer for a scene from its parts (the
-scene's needs, the lighting, the shadow test, the analytic refinement) and
-picks the implementation.
+:func:`.tracing.build_tracer` assembles a tracer for a scene and picks the
+implementation.
 """
 
 from __future__ import annotations
@@ -24,11 +23,7 @@ import mitsuba as mi
 
 from ..camera import camera_rays
 from ..jit import to_int
-from .analytic import AnalyticRefiner
-from .lighting import DirectLighting, LightingSettings, ShadowTester
-from .scene_needs import SceneNeeds
-from .scene_ref import SceneRef
-from .shading import HitShader, TreeSettings
+from .shading import HitShader
 
 
 @dataclass
@@ -133,38 +128,3 @@ class Tracer:
     def statistics(self) -> dict:
         """Rays traced since the last ``reload``, by kind."""
         return self.stats.as_dict()
-
-
-def build_tracer(scene: mi.Scene, needs: SceneNeeds, shadows: str,
-                 lighting: LightingSettings, tree: TreeSettings, wavefront_size: int,
-                 wavefront: bool = False) -> Tracer:
-    """A tracer of ``scene`` built from its ``needs``: the depth-first one
-    where its stack is deep enough, else (or when ``wavefront`` asks, e.g.
-    to capture each generation's rays) the wavefront one. ``shadows``:
-    the shadow mode of :class:`ShadowTester`."""
-    # The implementations derive from Tracer, so they are imported here.
-    from .depth_first import DepthFirstTracer
-    from .wavefront import WavefrontTracer
-
-    scene_ref = SceneRef(scene)
-    refiner = (AnalyticRefiner(scene_ref, needs.analytic_shapes, needs.scale)
-               if needs.analytic_shapes else None)
-    intersect = refiner.intersect if refiner else plain_intersect(scene_ref)
-    shadow_test = ShadowTester(scene_ref, needs, shadows, intersect)
-    shader = HitShader(scene_ref, needs, tree, DirectLighting(needs, lighting, shadow_test))
-    if not wavefront and DepthFirstTracer.supports(shader):
-        return DepthFirstTracer(shader, intersect, refiner, wavefront_size)
-    return WavefrontTracer(shader, intersect, refiner, wavefront_size)
-
-
-def plain_intersect(scene_ref: SceneRef):
-    """``intersect(ray, active, coherent)``: Mitsuba's own intersection.
-
-    The tracers pass ``coherent=True`` for the rays of a ray tree (Embree's
-    packet traversal): camera rays, and the mirror and refracted rays of
-    Whitted's smooth surfaces, stay coherent; shadow rays are faster in the
-    incoherent mode."""
-    def intersect(ray: mi.Ray3f, active: mi.Bool,
-                  coherent: bool = False) -> mi.SurfaceInteraction3f:
-        return scene_ref.get().ray_intersect(ray, mi.RayFlags.All, coherent, active)
-    return intersect

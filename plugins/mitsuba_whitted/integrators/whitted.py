@@ -14,7 +14,8 @@ from .lighting import LightingSettings
 from .scene_needs import SceneNeeds, analyse
 from .scene_ref import identity
 from .shading import MAX_TREE_RAYS, TreeSettings
-from .tracer import RayBatch, build_tracer
+from .tracer import RayBatch
+from .tracing import build_tracer
 
 PLUGIN_NAME = "whitted"
 
@@ -297,7 +298,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     def make_tracer(self, scene: mi.Scene, seed: int = 0, wavefront: bool = False,
                     needs: SceneNeeds = None):
         """A tracer of ``scene`` with this integrator's settings
-        (:func:`.tracer.build_tracer`; ``wavefront`` asks for the wavefront
+        (:func:`.tracing.build_tracer`; ``wavefront`` asks for the wavefront
         tracer, e.g. to capture each generation's rays). ``needs`` replaces
         ``analyse(scene)``, e.g. to trace with another absolute offset
         length (its ``scale``)."""

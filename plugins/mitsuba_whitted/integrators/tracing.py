@@ -1,0 +1,46 @@
+"""Which tracer renders a scene, assembled from its parts: the scene's
+needs, the lighting, the shadow test, the analytic refinement."""
+
+from __future__ import annotations
+
+import mitsuba as mi
+
+from .analytic import AnalyticRefiner
+from .depth_first import DepthFirstTracer
+from .lighting import DirectLighting, LightingSettings, ShadowTester
+from .scene_needs import SceneNeeds
+from .scene_ref import SceneRef
+from .shading import HitShader, TreeSettings
+from .tracer import Tracer
+from .wavefront import WavefrontTracer
+
+
+def build_tracer(scene: mi.Scene, needs: SceneNeeds, shadows: str,
+                 lighting: LightingSettings, tree: TreeSettings, wavefront_size: int,
+                 wavefront: bool = False) -> Tracer:
+    """A tracer of ``scene`` built from its ``needs``: the depth-first one
+    where its stack is deep enough, else (or when ``wavefront`` asks, e.g.
+    to capture each generation's rays) the wavefront one. ``shadows``:
+    the shadow mode of :class:`ShadowTester`."""
+    scene_ref = SceneRef(scene)
+    refiner = (AnalyticRefiner(scene_ref, needs.analytic_shapes, needs.scale)
+               if needs.analytic_shapes else None)
+    intersect = refiner.intersect if refiner else plain_intersect(scene_ref)
+    shadow_test = ShadowTester(scene_ref, needs, shadows, intersect)
+    shader = HitShader(scene_ref, needs, tree, DirectLighting(needs, lighting, shadow_test))
+    if not wavefront and DepthFirstTracer.supports(shader):
+        return DepthFirstTracer(shader, intersect, refiner, wavefront_size)
+    return WavefrontTracer(shader, intersect, refiner, wavefront_size)
+
+
+def plain_intersect(scene_ref: SceneRef):
+    """``intersect(ray, active, coherent)``: Mitsuba's own intersection.
+
+    The tracers pass ``coherent=True`` for the rays of a ray tree (Embree's
+    packet traversal): camera rays, and the mirror and refracted rays of
+    Whitted's smooth surfaces, stay coherent; shadow rays are faster in the
+    incoherent mode."""
+    def intersect(ray: mi.Ray3f, active: mi.Bool,
+                  coherent: bool = False) -> mi.SurfaceInteraction3f:
+        return scene_ref.get().ray_intersect(ray, mi.RayFlags.All, coherent, active)
+    return intersect
