@@ -23,7 +23,7 @@ from mitsuba_whitted.compare import (CompareOptions, ReferenceCache, cache_key, 
                                      path_batches, rel_mse, scene_digest, scene_whitted_settings,
                                      timed_render,                                      whitted_batches)
 from mitsuba_whitted.compare.report import MarkdownReport, number
-from mitsuba_whitted.compare.scene_report import machine
+from mitsuba_whitted.system import machine
 from mitsuba_whitted.compare.sweep import speedup_text
 from validation import reference_errors, stability
 from validation.scenes import (BLEND_DIFFUSE, BLEND_WEIGHT, REPORT_SCENE, SPEED,
