@@ -315,6 +315,37 @@ def test_a_capturing_render_records_its_shadow_rays(monkeypatch):
     assert whitted.last_rays is None
 
 
+def test_a_capturing_render_records_every_light_sample_in_its_slot():
+    """A floor under a point light and an area light sampled four times:
+    each floor hit tests five shadow rays, logged light sample by light
+    sample (the point light's, then the area light's), each in the order of
+    the hits; they end at the point light and on the area light's square."""
+    samples, half = 4, 0.5
+    lamp = {"type": "rectangle", "emitter": {"type": "area", "radiance": rgb(5, 5, 5)},
+            "to_world": mi.ScalarTransform4f().translate([0, 4, 0]).rotate([1, 0, 0], 90)
+            .scale(half)}  # facing down
+    loaded = mi.load_dict(scene(floor(y=0.0, size=3), point_light((0, 3, 0)), lamp,
+                                sensor=camera(origin=(0, 2, 4), size=16)))
+    whitted = mi.load_dict(integrator(max_depth=2, emitter_samples=samples))
+    whitted.capture_rays = True
+    mi.render(loaded, integrator=whitted)
+    [batch] = whitted.last_rays
+    hits = dr.count(loaded.ray_intersect(mi.Ray3f(batch.rays.o, batch.rays.d)).is_valid())[0]
+    assert 0 < hits < 16 * 16
+    assert dr.width(batch.shadow.o) == whitted.last_stats["shadow"] == (1 + samples) * hits
+    origins = np.split(np.array(batch.shadow.o), 1 + samples, axis=1)
+    ends = np.split(np.array(batch.shadow.o + batch.shadow.d * batch.shadow.maxt), 1 + samples,
+                    axis=1)
+    for slot in range(1, 1 + samples):
+        assert np.array_equal(origins[slot], origins[0])
+    np.testing.assert_allclose(ends[0], np.broadcast_to([[0], [3], [0]], (3, hits)), atol=0.02)
+    on_lamp = np.stack(ends[1:])
+    np.testing.assert_allclose(on_lamp[:, 1], 4, atol=0.02)
+    assert np.all(np.abs(on_lamp[:, [0, 2]]) <= half + 1e-3)
+    assert all(np.all(np.any(on_lamp[i] != on_lamp[j], axis=0))
+               for i in range(samples) for j in range(i))
+
+
 def test_diffuse_point_light_closed_form():
     """Floor radiance under a point light: rho/pi * I cos(theta) / d^2."""
     image, _ = render(shadow_scene())
