@@ -31,8 +31,11 @@ def test_bench_quick_writes_every_figure(tmp_path):
     bound = figures["bound"]
     assert bound["ray_intersect_rays"] == (rays["camera"] + rays["reflection"]
                                            + rays["refraction"] + rays["passthrough"])
-    # The report's scene has tinted shadows: blocked shadow rays march on.
-    assert rays["shadow_march"] > 0 and bound["shadow_march_rays"] > 0
+    # The bound casts the render's own rays, the shadow rays and the
+    # queries that march blocked ones through the tinted glass among them.
+    assert (bound["ray_test_rays"], bound["shadow_march_rays"]) == (rays["shadow"],
+                                                                    rays["shadow_march"])
+    assert rays["shadow_march"] > 0
     assert 0 < bound["ratio"] == statistics.median(bound["ratios"])
     assert bound["render_s"] > 0 and len(bound["ratios"]) >= 2
     for cast in ("ray_intersect", "ray_test", "shadow_march"):
@@ -58,27 +61,25 @@ def test_the_first_launch_ends_after_its_camera_samples():
     """A launch traces its camera rays in parts, each part's generations
     in turn: the first launch's batches end where a generation 0 starts
     after all its samples."""
-    from mitsuba_whitted.bench import _first_launch_end
+    from mitsuba_whitted.bench.bound import first_launch_end
 
     class Batch:
-        def __init__(self, n):
-            self.n = n
+        def __init__(self, generation, n):
+            self.generation, self.rays = generation, range(n)
 
-        def __len__(self):
-            return self.n
-
-    captured = [(0, Batch(6)), (1, Batch(4)), (0, Batch(4)), (1, Batch(2)), (2, Batch(1)),
-                (0, Batch(8)), (1, Batch(3)), (0, Batch(8))]
-    assert _first_launch_end(captured, 10) == 5
-    assert _first_launch_end(captured, 6) == 2
-    assert _first_launch_end(captured[:5], 10) == 5  # a single launch: all of it
+    captured = [Batch(0, 6), Batch(1, 4), Batch(0, 4), Batch(1, 2), Batch(2, 1),
+                Batch(0, 8), Batch(1, 3), Batch(0, 8)]
+    assert first_launch_end(captured, 10) == 5
+    assert first_launch_end(captured, 6) == 2
+    assert first_launch_end(captured[:5], 10) == 5  # a single launch: all of it
 
 
 def test_a_child_reports_its_own_peak_memory_not_its_parents():
     """Linux's ru_maxrss of a child starts at its parent's resident size:
     with 1 GiB resident here, a small render in a child must still read
     small."""
-    from mitsuba_whitted.bench import DEFAULT_SCENE, child_peak_memory, peak_rss_mib
+    from mitsuba_whitted.bench import DEFAULT_SCENE
+    from mitsuba_whitted.bench.processes import child_peak_memory, peak_rss_mib
     resident = np.ones(2 ** 27)  # 1 GiB, touched
     assert peak_rss_mib() > 1024
     child = child_peak_memory(DEFAULT_SCENE, {"aa": "none"}, {"res": 16})
@@ -107,17 +108,16 @@ def _bound_of(description):
     camera rays hit."""
     import drjit as dr
     import mitsuba as mi
-    from mitsuba_whitted.bench import ray_casting_bound
+    from mitsuba_whitted.bench.bound import ray_casting_bound
     loaded = mi.load_dict(description)
     whitted = loaded.integrator()
     whitted.capture_rays = True
     mi.render(loaded)
     whitted.capture_rays = False
-    generation, camera_rays = whitted.last_rays[0]
-    assert generation == 0
-    hits = dr.count(loaded.ray_intersect(mi.Ray3f(camera_rays.o, camera_rays.d)).is_valid())[0]
-    bound = ray_casting_bound(loaded, whitted.make_tracer(loaded), whitted.last_rays,
-                              lambda: mi.render(loaded), 2)
+    first = whitted.last_rays[0]
+    assert first.generation == 0
+    hits = dr.count(loaded.ray_intersect(mi.Ray3f(first.rays.o, first.rays.d)).is_valid())[0]
+    bound = ray_casting_bound(loaded, whitted.last_rays, lambda: mi.render(loaded), 2)
     return bound, whitted.last_stats, hits
 
 
@@ -144,16 +144,3 @@ def test_the_bound_of_a_scene_without_shadow_rays():
     assert hits > 0
     assert stats["shadow"] == bound.rays["ray_test"] == bound.rays["shadow_march"] == 0
     assert bound.seconds_by_cast["ray_test"] == 0 and bound.seconds > 0
-
-
-def test_a_replay_that_casts_other_rays_is_refused():
-    """Rounding may move a grazing ray, a different set of rays may not."""
-    import pytest
-    from mitsuba_whitted.bench import Bound, _check_replay
-    counts = {"ray_intersect": 5000, "ray_test": 4000, "shadow_march": 600}
-    bound = Bound(counts, {cast: 0.001 for cast in counts}, {cast: False for cast in counts},
-                  0.01, [0.3])
-    _check_replay(bound, {"shadow": 4002, "shadow_march": 600})
-    with pytest.raises(RuntimeError, match="replayed 600 rays for shadow_march where the "
-                                           "render cast 700"):
-        _check_replay(bound, {"shadow": 4000, "shadow_march": 700})

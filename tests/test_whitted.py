@@ -13,7 +13,7 @@ import mitsuba_whitted
 from conftest import assert_finite
 from mitsuba_whitted.integrators.scene_needs import analyse
 from mitsuba_whitted.integrators.scene_ref import SceneRef
-from mitsuba_whitted.integrators.depth_first import LAUNCH_FACTOR
+from mitsuba_whitted.integrators.depth_first import LAUNCH_FACTOR, DepthFirstTracer
 from validation.scenes import (camera, diffuse, floor, glass_scene, integrator, point_light, rgb, scene,
                     sphere)
 
@@ -229,6 +229,14 @@ def _distance_to_ball(start, end):
     return np.linalg.norm(start + t[..., None] * span - centre, axis=-1)
 
 
+def _distance_to_line(points, start, end):
+    """Float64: distance of each point (3 x n) from the line through
+    ``start`` and ``end``."""
+    span = (end - start).astype(np.float64)
+    offset = (points - start).astype(np.float64)
+    return np.linalg.norm(np.cross(offset, span, axis=0), axis=0) / np.linalg.norm(span, axis=0)
+
+
 def expected_shadow_rays(projection):
     """Closed form: the floor points seen at the pixel centres (unless the
     ball is in the way: a hit on the ball casts no shadow ray), and those
@@ -268,15 +276,74 @@ def test_marched_shadow_rays_are_counted(projection, capture):
     assert (stats["shadow"], stats["shadow_march"]) == (shadow_rays, 3 * blocked)
 
 
-def test_bench_replays_the_marched_shadow_rays():
-    """The bound casts the same closest-hit queries as the shadow tester."""
-    from mitsuba_whitted.bench import march_rays_of, shadow_rays_of
+def test_a_capturing_render_records_its_shadow_rays(monkeypatch):
+    """The shadow test of a capturing render writes down every shadow ray
+    it tests, from the floor to the light, and every query that follows a
+    blocked one through the index-matched ball: the blocked ray itself,
+    then from the ball's near side and from its far side, crossing by
+    crossing; and the image is the same, bit for bit, as the same tracer's
+    without capturing."""
     shadow_rays, blocked = expected_shadow_rays("perspective")
     loaded, whitted = render_march_scene("perspective", capture=True)
-    tracer = whitted.make_tracer(loaded)
-    shadow, targets = shadow_rays_of(loaded, tracer, whitted.last_rays)
-    march = march_rays_of(loaded, tracer, shadow, targets)
-    assert (dr.width(shadow.o), dr.width(march.o)) == (shadow_rays, 3 * blocked)
+    [batch] = whitted.last_rays
+    shadow, queries = batch.shadow, batch.queries
+    assert (dr.width(shadow.o), dr.width(queries.o)) == (shadow_rays, 3 * blocked)
+    assert (whitted.last_stats["shadow"], whitted.last_stats["shadow_march"]) == \
+        (shadow_rays, 3 * blocked)
+    light = np.array([[0], [LIGHT_HEIGHT], [0]])
+    np.testing.assert_allclose(np.array(shadow.o)[1], 0, atol=1e-3)
+    np.testing.assert_allclose(np.array(shadow.o + shadow.d * shadow.maxt), np.broadcast_to(
+        light, (3, shadow_rays)), atol=0.02)
+    origins = np.array(queries.o)
+    np.testing.assert_allclose(origins[1, :blocked], 0, atol=1e-3)
+    centre = np.array([[0], [BALL_HEIGHT], [0]])
+    np.testing.assert_allclose(np.linalg.norm(origins[:, blocked:] - centre, axis=0),
+                               BALL_RADIUS, atol=1e-3)
+    # Each blocked ray's crossings lie on its line to the light, in order.
+    floor_points, near, far = np.split(origins, 3, axis=1)
+    for crossing in (near, far):
+        np.testing.assert_allclose(_distance_to_line(crossing, floor_points, light), 0,
+                                   atol=1e-3)
+    assert np.all(floor_points[1] < near[1]) and np.all(near[1] < far[1])
+    np.testing.assert_allclose(np.array(queries.o + queries.d * queries.maxt), np.broadcast_to(
+        light, (3, 3 * blocked)), atol=0.02)
+
+    captured = mi.render(loaded, integrator=whitted)
+    monkeypatch.setattr(DepthFirstTracer, "supports", staticmethod(lambda shader: False))
+    whitted.capture_rays = False
+    assert np.array_equal(np.array(mi.render(loaded, integrator=whitted)), np.array(captured))
+    assert whitted.last_rays is None
+
+
+def test_a_capturing_render_records_every_light_sample_in_its_slot():
+    """A floor under a point light and an area light sampled four times:
+    each floor hit tests five shadow rays, logged light sample by light
+    sample (the point light's, then the area light's), each in the order of
+    the hits; they end at the point light and on the area light's square."""
+    samples, half = 4, 0.5
+    lamp = {"type": "rectangle", "emitter": {"type": "area", "radiance": rgb(5, 5, 5)},
+            "to_world": mi.ScalarTransform4f().translate([0, 4, 0]).rotate([1, 0, 0], 90)
+            .scale(half)}  # facing down
+    loaded = mi.load_dict(scene(floor(y=0.0, size=3), point_light((0, 3, 0)), lamp,
+                                sensor=camera(origin=(0, 2, 4), size=16)))
+    whitted = mi.load_dict(integrator(max_depth=2, emitter_samples=samples))
+    whitted.capture_rays = True
+    mi.render(loaded, integrator=whitted)
+    [batch] = whitted.last_rays
+    hits = dr.count(loaded.ray_intersect(mi.Ray3f(batch.rays.o, batch.rays.d)).is_valid())[0]
+    assert 0 < hits < 16 * 16
+    assert dr.width(batch.shadow.o) == whitted.last_stats["shadow"] == (1 + samples) * hits
+    origins = np.split(np.array(batch.shadow.o), 1 + samples, axis=1)
+    ends = np.split(np.array(batch.shadow.o + batch.shadow.d * batch.shadow.maxt), 1 + samples,
+                    axis=1)
+    for slot in range(1, 1 + samples):
+        assert np.array_equal(origins[slot], origins[0])
+    np.testing.assert_allclose(ends[0], np.broadcast_to([[0], [3], [0]], (3, hits)), atol=0.02)
+    on_lamp = np.stack(ends[1:])
+    np.testing.assert_allclose(on_lamp[:, 1], 4, atol=0.02)
+    assert np.all(np.abs(on_lamp[:, [0, 2]]) <= half + 1e-3)
+    assert all(np.all(np.any(on_lamp[i] != on_lamp[j], axis=0))
+               for i in range(samples) for j in range(i))
 
 
 def test_diffuse_point_light_closed_form():

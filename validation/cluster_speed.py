@@ -31,7 +31,7 @@ import numpy as np
 
 import mitsuba_whitted
 from mitsuba_whitted.compare.reference import path_settings, reference_tasks, render_reference
-from mitsuba_whitted.compare.scene_report import machine
+from mitsuba_whitted.system import machine
 from mitsuba_whitted.distributed import InProcess, SceneSource, run_job
 
 REPORT_SCENE = Path(__file__).resolve().parent.parent / "scenes" / "cosc363.xml"

@@ -23,8 +23,8 @@ from mitsuba_whitted.compare import (CompareOptions, ReferenceCache, cache_key, 
                                      rel_mse, scene_whitted_settings, timed_render,
                                      whitted_batches)
 from mitsuba_whitted.compare.report import MarkdownReport, number
-from mitsuba_whitted.compare.scene_report import machine
 from mitsuba_whitted.files import replaced_folder
+from mitsuba_whitted.system import machine
 from mitsuba_whitted.compare.sweep import speedup_text
 from mitsuba_whitted.distributed import SceneSource, backend
 from mitsuba_whitted.progress import Progress

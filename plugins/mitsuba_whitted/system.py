@@ -1,6 +1,13 @@
-"""What the machine says about itself, where Linux says it."""
+"""What the machine says about itself (where Linux says it), and the versions
+timings depend on."""
 
 from __future__ import annotations
+
+import os
+import platform
+
+import drjit as dr
+import mitsuba as mi
 
 
 def proc_field(path: str, name: str) -> str | None:
@@ -16,6 +23,25 @@ def proc_field(path: str, name: str) -> str | None:
     except OSError:
         pass
     return None
+
+
+def machine() -> str:
+    """The processor, the system, the core count and the versions that
+    timings depend on, in one line."""
+    return (f"{platform.machine()} ({_cpu_model()}), {platform.system()} {platform.release()}, "
+            f"{_cpu_count()} CPU cores; Python {platform.python_version()}, "
+            f"mitsuba {mi.__version__}, drjit {dr.__version__}, variant {mi.variant()}")
+
+
+def _cpu_model() -> str:
+    """The processor's name (Linux), which timings depend on as much as on
+    the core count; "unknown CPU" where the system does not say."""
+    return proc_field("/proc/cpuinfo", "model name") or "unknown CPU"
+
+
+def _cpu_count() -> int:
+    """The cores this process may run on."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
 
 
 MEMINFO = "/proc/meminfo"

@@ -15,7 +15,7 @@ import mitsuba as mi
 
 def main(size: int, max_depth: int) -> None:
     mitsuba_whitted.set_variant("llvm_ad_rgb")
-    from mitsuba_whitted.bench import peak_rss_mib
+    from mitsuba_whitted.bench.processes import peak_rss_mib
     glass = {"type": "dielectric", "int_ior": 1.5}
     scene = mi.load_dict({
         "type": "scene",

@@ -7,7 +7,6 @@ images, error maps, a table, the error-against-time plot and
 from __future__ import annotations
 
 import json
-import platform
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,9 +15,9 @@ import mitsuba as mi
 import numpy as np
 
 from .. import load_file
-from ..files import check_readable, write_text
-from ..system import proc_field
 from ..distributed import SceneSource
+from ..files import check_readable, write_text
+from ..system import machine
 from .cache import ReferenceCache, cache_key
 from .metrics import missing_energy_share, missing_light, noise_rel_mse, rel_squared_error
 from .reference import Reference, cached_reference, path_settings
@@ -130,26 +129,6 @@ def _results(name: str, reference: Reference, points: list[SweepPoint]) -> dict:
 
 def _first_whitted(points):
     return next(p for p in points if p.kind == "whitted")
-
-
-def machine() -> str:
-    import drjit as dr
-
-    return (f"{platform.machine()} ({_cpu_model()}), {platform.system()} {platform.release()}, "
-            f"{_cpu_count()} CPU cores; Python {platform.python_version()}, "
-            f"mitsuba {mi.__version__}, drjit {dr.__version__}, variant {mi.variant()}")
-
-
-def _cpu_model() -> str:
-    """The processor's name (Linux), which timings depend on as much as on
-    the core count; "unknown CPU" where the system does not say."""
-    return proc_field("/proc/cpuinfo", "model name") or "unknown CPU"
-
-
-def _cpu_count() -> int:
-    import os
-
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
 
 
 def _write_report(out_dir, scene_path, defines, reference, points, results, keep_linear):

@@ -9,6 +9,7 @@ result is a deterministic function of the scene and the render seed.
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import drjit as dr
@@ -56,13 +57,27 @@ class ShadowTester(ReadsScene):
         self.tinted = shadows != "physical"
         self.intersect = intersect
         self.opaque = not needs.transmissive and not needs.analytic_shapes
+        #: The :class:`~.shadow_log.ShadowLog` the rays are written to while
+        #: a capturing render traces a kernel (:meth:`logging_to`), else
+        #: ``None``: then nothing is written and the kernel does no more.
+        self.log = None
+
+    @contextmanager
+    def logging_to(self, log):
+        """Write the rays of the shadow tests traced meanwhile to ``log``."""
+        self.log = log
+        try:
+            yield
+        finally:
+            self.log = None
 
     @dr.syntax
     def transmittance(self, si: mi.SurfaceInteraction3f, target: mi.Point3f,
-                      active: mi.Bool):
+                      active: mi.Bool, slot):
         """What reaches ``target`` from ``si`` (0 outside ``active``), and
         the closest-hit queries the segment took past its any-hit test
-        (:meth:`_march`; 0 where it was not blocked).
+        (:meth:`_march`; 0 where it was not blocked). ``slot``: which of a
+        lane's shadow rays this is, where the log keeps it.
 
         A SIMD packet none of whose lanes casts a shadow ray skips the test
         (a symbolic branch): Embree called with an empty packet still costs
@@ -72,11 +87,13 @@ class ShadowTester(ReadsScene):
         passed = mi.Color3f(0)
         marched = mi.UInt32(0)
         if active:
-            passed, marched = self._cast(si, target, active)
+            passed, marched = self._cast(si, target, active, slot)
         return passed, marched
 
-    def _cast(self, si: mi.SurfaceInteraction3f, target: mi.Point3f, active: mi.Bool):
+    def _cast(self, si: mi.SurfaceInteraction3f, target: mi.Point3f, active: mi.Bool, slot):
         ray = spawn_ray_to(si, target, self.needs.scale)
+        if self.log is not None:
+            self.log.test(slot, ray, active)
         blocked = self.scene.ray_test(ray, active)
         free = dr.select(active & ~blocked, mi.Color3f(1), mi.Color3f(0))
         if self.opaque:
@@ -84,19 +101,22 @@ class ShadowTester(ReadsScene):
         # Only rays the fast any-hit test found blocked can still carry light
         # (through a pass-through surface, or past a proxy that the exact
         # surface does not fill): march those alone.
-        weight, marched = self._march(ray, target, active & blocked)
+        weight, marched = self._march(ray, target, active & blocked, slot)
+        if self.log is not None:
+            self.log.followed(slot, marched, active)
         return free + weight, marched
 
     @dr.syntax
-    def _march(self, ray: mi.Ray3f, target: mi.Point3f, active: mi.Bool):
+    def _march(self, ray: mi.Ray3f, target: mi.Point3f, active: mi.Bool, slot):
         """Follow the shadow ray through pass-through surfaces to the light:
         what arrives, and how many closest-hit queries that took."""
         weight = dr.select(active, mi.Color3f(1), mi.Color3f(0))
         crossings = mi.UInt32(0)
         while active:
+            self._log_query(slot, crossings, ray, active)
             si = self.intersect(ray, active)
             hit = active & si.is_valid()
-            passed = self.pass_weight(si, ray, hit)
+            passed = self._pass_weight(si, ray, hit)
             weight[hit] = weight * passed
             crossings += 1
             active = hit & dr.any(passed > 0) & (crossings < MAX_SHADOW_CROSSINGS)
@@ -104,7 +124,11 @@ class ShadowTester(ReadsScene):
             ray[active] = spawn_ray_to(si, target, self.needs.scale)
         return weight, crossings
 
-    def pass_weight(self, si: mi.SurfaceInteraction3f, ray: mi.Ray3f,
+    def _log_query(self, slot, crossing, ray: mi.Ray3f, active: mi.Bool) -> None:
+        if self.log is not None:
+            self.log.query(slot, crossing, ray, active)
+
+    def _pass_weight(self, si: mi.SurfaceInteraction3f, ray: mi.Ray3f,
                     active: mi.Bool) -> mi.Color3f:
         """What a surface lets through along the shadow ray, 0 if it blocks:
         one dispatch, in which a BSDF that cannot let light through answers
@@ -171,6 +195,13 @@ class DirectLighting:
         self.shadows = shadows
         self.use_ambient = dr.any(settings.ambient != 0)
 
+    @property
+    def shadow_slots(self) -> int:
+        """The most shadow rays a hit tests: one per delta light, then one
+        per sample of each sampled light, in this order (their slots)."""
+        return (len(self.needs.delta_lights)
+                + len(self.needs.sampled_lights) * self.settings.emitter_samples)
+
     def delta_samples(self, si, active) -> list:
         """``(ds, spectrum)`` towards each delta light: the directions the
         BSDF is asked about (``bsdf_query``) before shading."""
@@ -186,8 +217,8 @@ class DirectLighting:
         rays = ShadowRays(mi.UInt32(0), mi.UInt32(0))
         if self.use_ambient:
             result += dr.select(active, terms.albedo, 0) * mi.Color3f(self.settings.ambient)
-        for (ds, spectrum), value in zip(samples, terms.values):
-            radiance, cast = self._shadowed(si, ds, value * spectrum, active)
+        for slot, ((ds, spectrum), value) in enumerate(zip(samples, terms.values)):
+            radiance, cast = self._shadowed(si, ds, value * spectrum, active, slot)
             result += radiance
             rays += cast
         for index, light in enumerate(self.needs.sampled_lights):
@@ -196,20 +227,21 @@ class DirectLighting:
             rays += cast
         return result, rays
 
-    def _from_light(self, light, si, bsdf, sample, active):
+    def _from_light(self, light, si, bsdf, sample, active, slot):
         """Shadowed radiance from one light sample, and its shadow rays."""
         ds, spectrum = light.sample_direction(si, sample, active)
         f = bsdf.eval(mi.BSDFContext(), si, si.to_local(ds.d), active)
-        return self._shadowed(si, ds, f * spectrum, active)
+        return self._shadowed(si, ds, f * spectrum, active, slot)
 
-    def _shadowed(self, si, ds, contribution, active):
-        """``contribution`` through the shadow ray to ``ds``, and the rays
-        that took (a shadow ray only where it could add light)."""
+    def _shadowed(self, si, ds, contribution, active, slot):
+        """``contribution`` through the shadow ray to ``ds`` (the ``slot``-th
+        of the hit's), and the rays that took (a shadow ray only where it
+        could add light)."""
         lit = active & (ds.pdf > 0) & dr.any(contribution > 0)
-        passed, marched = self.shadows.transmittance(si, ds.p, lit)
+        passed, marched = self.shadows.transmittance(si, ds.p, lit, slot)
         return contribution * passed, ShadowRays(mi.UInt32(lit), marched)
 
-    def sample_points(self, key: mi.UInt32, index: int):
+    def _sample_points(self, key: mi.UInt32, index: int):
         """Where the shadow rays of ray ``key`` sample the ``index``-th of
         ``needs.sampled_lights``: ``point(s)`` for the s-th of them."""
         rotation = _unit_pair(key, self.settings.seed * 7919 + index)
@@ -221,7 +253,7 @@ class DirectLighting:
 
         return point
 
-    def lights_reach(self, light, si: mi.SurfaceInteraction3f, active: mi.Bool) -> mi.Bool:
+    def _lights_reach(self, light, si: mi.SurfaceInteraction3f, active: mi.Bool) -> mi.Bool:
         """Where a sampled ``light`` is tested from ``si`` at all."""
         return active & ~_on_own_shape(light, si)
 
@@ -229,13 +261,14 @@ class DirectLighting:
     def _sampled(self, light, index, si, bsdf, key, active):
         """Mean of ``emitter_samples`` shadow rays, spread by the R2 sequence."""
         count = self.settings.emitter_samples
-        active = self.lights_reach(light, si, active)
-        point = self.sample_points(key, index)
+        first_slot = len(self.needs.delta_lights) + index * count
+        active = self._lights_reach(light, si, active)
+        point = self._sample_points(key, index)
         total = mi.Color3f(0)
         rays = ShadowRays(mi.UInt32(0), mi.UInt32(0))
         s = mi.UInt32(0)
         while active & (s < count):
-            radiance, cast = self._from_light(light, si, bsdf, point(s), active)
+            radiance, cast = self._from_light(light, si, bsdf, point(s), active, first_slot + s)
             total += radiance
             rays += cast
             s += 1

@@ -7,8 +7,8 @@ Two implementations stand side by side over the base here:
 - :mod:`.depth_first`: each camera sample's whole tree in one frozen
   kernel, depth first, with a small per-lane stack: the fast one;
 - :mod:`.wavefront`: one generation of rays at a time for the whole batch,
-  compacted between generations: any depth, and every generation's rays
-  can be kept (``captured``) for the bench to replay.
+  compacted between generations: any depth, and every ray it casts can be
+  kept (``captured``) for the bench to replay.
 
 :func:`.tracing.build_tracer` assembles a tracer for a scene and picks the
 implementation.
@@ -75,6 +75,19 @@ class RayBatch:
         return self.o, self.d, self.throughput, self.key
 
 
+@dataclass
+class CapturedBatch:
+    """What a capturing render keeps of one batch it traced: its rays, and
+    the rays its shadow test cast, as cast (:mod:`.shadow_log`): the shadow
+    rays tested, and the closest-hit queries that followed blocked ones
+    through surfaces that let light pass (both empty where the batch tested
+    no shadows)."""
+    generation: int
+    rays: RayBatch
+    shadow: mi.Ray3f
+    queries: mi.Ray3f
+
+
 class Tracer:
     """What both tracers hold: ``trace(rays)`` gives radiance and alpha
     (primary hit) of camera rays and adds to ``stats``. ``wavefront_size``:
@@ -89,9 +102,9 @@ class Tracer:
         self.wavefront_size = wavefront_size
         self.intersect = intersect
         self.refiner = refiner
-        #: When a list, ``(generation, batch)`` of every traced batch is
-        #: appended to it (benchmarks replay the very same rays through
-        #: Mitsuba's own ray casting).
+        #: When a list, the wavefront tracer appends a :class:`CapturedBatch`
+        #: of every batch it traces (the bench replays the very same rays
+        #: through Mitsuba's own ray casting).
         self.captured = None
         self._start()
 

@@ -27,7 +27,8 @@ from ..jit import index_range, sum_blocks
 from .bsdf_query import KIND_CODES
 from .frozen import FrozenKernel
 from .shading import MAX_TREE_RAYS, HitShader, HitWork
-from .tracer import RayBatch, Tracer
+from .shadow_log import ShadowLog, no_rays
+from .tracer import CapturedBatch, RayBatch, Tracer
 
 
 class WavefrontTracer(Tracer):
@@ -82,24 +83,42 @@ class WavefrontTracer(Tracer):
         a :class:`_Generation` waiting for them."""
         self.stats.batches += 1
         self.stats.generations = max(self.stats.generations, generation + 1)
+        log = self._shadow_log(len(rays), generation)
+        local, alpha, children, slots = self._shade(rays, generation, log)
         if self.captured is not None:
-            self.captured.append((generation, rays))
-        local, alpha, children, slots = self._shade(rays, generation)
+            self.captured.append(CapturedBatch(generation, rays, *_logged_rays(log)))
         if children is None:
             return local, alpha
         return _Generation(generation, local, alpha, children, slots, self.fan_out)
 
-    def _shade(self, rays: RayBatch, generation: int):
+    def _shadow_log(self, lanes: int, generation: int):
+        """Where a capturing render's shadow test writes the rays of a batch
+        of ``lanes`` rays of ``generation``; ``None`` if the render does not
+        capture or the batch tests no shadows."""
+        lighting = self.shader.lighting
+        if (self.captured is None or self.shader.work(generation).light is False
+                or lighting.shadow_slots == 0):
+            return None
+        return ShadowLog.for_batch(lanes, lighting.shadow_slots,
+                                   marching=not lighting.shadows.opaque)
+
+    def _shade(self, rays: RayBatch, generation: int, log):
         """Local radiance and alpha of one generation, its compacted children
-        and the slot (parent x fan-out + component) of each child."""
+        and the slot (parent x fan-out + component) of each child; the
+        shadow rays go to ``log`` where it is not ``None``."""
         work = self.shader.work(generation)
         if not work.any() and generation > 0:
             return dr.zeros(mi.Color3f, len(rays)), None, None, None
         if work not in self._generation:
             self._generation[work] = FrozenKernel(self._generation_kernel, "wavefront tracer",
                                                   work)
-        local, alpha, shadow, refined, candidates = self._generation[work](
-            len(rays), self.shader.scene, self._kernel_inputs, *rays.fields())
+        kernel, arguments = self._generation[work], (len(rays), self.shader.scene,
+                                                      self._kernel_inputs, *rays.fields())
+        outputs = kernel(*arguments, log)
+        if log is not None and log.make_room():
+            # Once more with room for the queries it counted: same rays, same results.
+            outputs = kernel(*arguments, log)
+        local, alpha, shadow, refined, candidates = outputs
         local = dr.zeros(mi.Color3f, len(rays)) if local is None else local
         if shadow is not None:
             tested, marched = shadow
@@ -112,10 +131,11 @@ class WavefrontTracer(Tracer):
         children, slots = self._compact(candidates)
         return local, alpha, children, slots
 
-    def _generation_kernel(self, scene, inputs, o, d, throughput, key, work: HitWork):
+    def _generation_kernel(self, scene, inputs, o, d, throughput, key, log, work: HitWork):
         """Everything one generation computes, as one traced function of its
         rays: radiance, alpha, shadow rays and refinements per lane, and one
-        candidate child per delta component.
+        candidate child per delta component; the shadow test writes its rays
+        to ``log`` (filled in place) where it is not ``None``.
 
         It reads no sizes, so Dr.Jit can freeze it and replay its kernels for
         every later generation, part and anti-aliasing level. Outputs that
@@ -130,7 +150,8 @@ class WavefrontTracer(Tracer):
         refined = None
         if self.refiner is not None:
             refined = mi.UInt32(self.refiner.on_proxy(si, hit))
-        local, shadow, children = self.shader.shade(si, ray, throughput, key, work)
+        with self.shader.lighting.shadows.logging_to(log):
+            local, shadow, children = self.shader.shade(si, ray, throughput, key, work)
         if shadow is not None:
             shadow = (shadow.tested, shadow.marched)
         candidates = [(child.o, child.d, child.throughput, child.key, child.code)
@@ -171,6 +192,16 @@ class WavefrontTracer(Tracer):
         reflected = dr.count(codes == KIND_CODES["reflection"])
         self.stats.reflection = self.stats.reflection + reflected
         self.stats.refraction = self.stats.refraction + (count - reflected)
+
+
+def _logged_rays(log) -> tuple:
+    """The shadow rays and queries of ``log``, evaluated so that the log can
+    go; none without one."""
+    if log is None:
+        return no_rays(), no_rays()
+    rays = log.shadow_rays(), log.query_rays()
+    dr.eval(rays)
+    return rays
 
 
 class _Generation:

@@ -235,7 +235,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         self.parameters_changed()
         #: Called as ``progress(done, expected, message)`` while rendering.
         self.progress = None
-        #: Set to keep every ray batch of the next render in ``last_rays``.
+        #: Set to keep every ray the next render casts in ``last_rays``.
         self.capture_rays = False
         self._last = _LastRender()
 
@@ -258,8 +258,8 @@ class WhittedIntegrator(mi.SamplingIntegrator):
 
     @property
     def last_rays(self):
-        """``(generation, ray batch)`` of every batch the last render traced,
-        if ``capture_rays`` was set."""
+        """A :class:`~.tracer.CapturedBatch` of every batch the last render
+        traced (its rays and its shadow rays), if ``capture_rays`` was set."""
         return self._last.rays
 
     @last_rays.setter

@@ -1,0 +1,23 @@
+"""``mitsuba-whitted bench``: speed, throughput bound, memory and scaling,
+measured side by side in one run.
+
+Every timed JIT computation ends with ``dr.sync_thread()`` before the clock
+stops. Warm figures are medians over repeated renders in one process; the
+first render of a fresh process (tracing and compiling, or loading compiled
+kernels from Dr.Jit's cache) is measured in child processes, once with the
+kernel cache as it is and once with an empty one.
+
+- :mod:`.timing`: render times in this process, and their scaling with
+  resolution and depth;
+- :mod:`.bound`: the ray-casting bound (the render's own rays through
+  Mitsuba's ray casting) and the split of a render at its first launch;
+- :mod:`.processes`: fresh processes and their peak memory;
+- :mod:`.equal_error`: the equal-error speed-up over ``path``;
+- :mod:`.suite`: the settings and the run of all of them;
+- :mod:`.tables`: the figures as a table.
+"""
+
+from .suite import DEFAULT_SCENE, BenchSettings, run
+from .tables import format_table
+
+__all__ = ["DEFAULT_SCENE", "BenchSettings", "format_table", "run"]

@@ -1,0 +1,71 @@
+"""The equal-error speed-up over ``path``: how much longer Mitsuba's path
+tracer takes to match Whitted's error on a scene both render alike."""
+
+from __future__ import annotations
+
+import mitsuba as mi
+
+from ..compare import (noise_rel_mse, path_settings, path_spp_ladder, render_reference,
+                       run_sweep, speedups)
+from ..compare.sweep import CONTRAST_AA
+
+#: Longest path of every render in the equal-error comparison (the
+#: reference's too, so that all of them model the same light).
+EQUAL_ERROR_DEPTH = 12
+
+
+def fresnel_scene(resolution: int) -> dict:
+    """An equivalence scene: a glass sphere before an emitting checkerboard.
+    Every path of light is a chain of Fresnel reflections and refractions,
+    which Whitted follows exactly and ``path`` samples one branch at a time."""
+    backdrop = {"type": "checkerboard", "color0": {"type": "rgb", "value": [0.1, 0.25, 0.8]},
+                "color1": {"type": "rgb", "value": [1.0, 0.8, 0.3]},
+                "to_uv": mi.ScalarTransform4f().scale([6, 6, 1])}
+    return {
+        "type": "scene",
+        "sensor": {"type": "perspective", "fov": 35,
+                   "to_world": mi.ScalarTransform4f().look_at([0, 0, 5], [0, 0, 0], [0, 1, 0]),
+                   "film": {"type": "hdrfilm", "width": resolution, "height": resolution,
+                            "rfilter": {"type": "box"}}},
+        "glass": {"type": "sphere", "radius": 1.0, "bsdf": {"type": "dielectric", "int_ior": 1.5}},
+        "backdrop": {"type": "rectangle",
+                     "to_world": mi.ScalarTransform4f().translate([0, 0, -3]).scale(4),
+                     "emitter": {"type": "area", "radiance": backdrop}},
+    }
+
+
+def equal_error_settings() -> dict:
+    """Labelled Whitted settings for the equal-error comparison: n x n grids
+    (n = 1, 2, 4, 8), and contrast-driven refinement with 64 and 256 points
+    per edge pixel, each with the default ray-tree pruning and coarser ones
+    (``min_throughput`` 1e-3 and 1e-2: branches carrying under 0.1% or 1%
+    are left out)."""
+    settings = {f"whitted grid {n}x{n}": {"aa": "grid", "aa_samples": n} for n in (1, 2, 4, 8)}
+    for n in (8, 16):
+        for pruning in (1e-4, 1e-3, 1e-2):
+            settings[f"whitted contrast {n}x{n}, min_throughput {pruning:g}"] = {
+                **CONTRAST_AA, "aa_samples": n, "min_throughput": pruning}
+    return {label: {"max_depth": EQUAL_ERROR_DEPTH, **values} for label, values in settings.items()}
+
+
+def equal_error_speedup(resolution: int, reference_spp: int, largest_spp: int,
+                        repeats: int) -> dict:
+    """Time ``path`` needs to match Whitted's error on ``fresnel_scene``,
+    over Whitted's time (both warm, against one converged reference), for
+    Whitted's anti-aliasing settings (:func:`equal_error_settings`): its
+    only error is aliasing, which they shrink, while path's is noise. The
+    headline is the best of these settings."""
+    scene = mi.load_dict(fresnel_scene(resolution))
+    reference = render_reference(scene, reference_spp,
+                                 settings=path_settings(EQUAL_ERROR_DEPTH))
+    points = run_sweep(scene, reference, equal_error_settings(), path_spp_ladder(largest_spp),
+                       repeats, path_depth=EQUAL_ERROR_DEPTH)
+    rows = [{"whitted": s.point.label, "whitted_rel_mse": s.point.rel_mse,
+             "whitted_seconds": s.point.seconds, "path_spp": s.path.spp,
+             "path_seconds": s.path.seconds, "relation": s.path.relation,
+             "speedup": s.factor} for s in speedups(points)]
+    best = max(rows, key=lambda row: row["speedup"])
+    return {"scene": "glass sphere before an emitting checkerboard",
+            "resolution": resolution, "reference_spp": reference.spp,
+            "reference_noise_rel_mse": noise_rel_mse(reference.variance, reference.image),
+            "settings": rows, **best}

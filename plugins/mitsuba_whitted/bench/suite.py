@@ -1,0 +1,128 @@
+"""The benchmark's settings, and the run of all its measurements."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import mitsuba as mi
+
+from ..overrides import load_with
+from ..system import machine
+from .bound import CASTS, launch_split, ray_casting_bound
+from .equal_error import equal_error_speedup
+from .processes import child_peak_memory, fresh_process_render, peak_rss_mib
+from .timing import release_scenes, scaling_table, time_render
+
+DEFAULT_SCENE = Path(__file__).resolve().parents[3] / "scenes" / "cosc363.xml"
+
+
+@dataclass
+class BenchSettings:
+    scene: Path = DEFAULT_SCENE
+    defines: dict = field(default_factory=dict)
+    #: Film width of the headline, memory and depth figures (the height
+    #: keeps the film's aspect); ``None``: the scene's own.
+    resolution: int | None = None
+    repeats: int = 7
+    #: Rounds of the bound (a render and the casts): the ratio of a round
+    #: wanders more on a shared machine than a render's time does, so their
+    #: median takes more rounds than ``repeats``.
+    bound_rounds: int = 25
+    resolutions: tuple = (256, 512, 1024, 2048)
+    depths: tuple = (2, 4, 6, 10)
+    aa_depths: tuple = (0, 2, 5, 10)
+    memory_resolutions: tuple = (600, 2048)
+    fresh_processes: bool = True
+    #: Equal-error scene: resolution, reference spp, largest path spp. The
+    #: reference's own noise (which the bench reports) must stay below
+    #: every error compared, and path's ladder must reach past Whitted's
+    #: best settings.
+    equal_error: tuple = (128, 65536, 16384)
+
+    @classmethod
+    def quick(cls, scene: Path = DEFAULT_SCENE, defines=None) -> "BenchSettings":
+        """Small sizes and few repeats: every figure, in seconds."""
+        return cls(scene, dict(defines or {}), resolution=96, repeats=2, bound_rounds=2,
+                   resolutions=(64, 128), depths=(2, 6), aa_depths=(0, 3),
+                   memory_resolutions=(96,), equal_error=(32, 512, 64))
+
+    @property
+    def scene_settings(self) -> dict:
+        """What :func:`~mitsuba_whitted.overrides.load_with` changes in the
+        scene for the headline."""
+        return {} if self.resolution is None else {"res": self.resolution}
+
+
+def headline(scene_path: Path, settings: BenchSettings, report) -> dict:
+    """Warm and first renders, rays by kind and the ray-casting bound of
+    ``scene_path``; the scene is released when this returns."""
+    scene = load_with(scene_path, settings.defines, settings.scene_settings)
+    integrator = scene.integrator()
+    if not hasattr(integrator, "capture_rays"):
+        raise RuntimeError("mitsuba-whitted bench: the scene's integrator is not 'whitted'.")
+    report("timing warm renders ...")
+    timing = time_render(scene, integrator, settings.repeats)
+
+    report("casting the render's own rays through Mitsuba's ray casting ...")
+    integrator.capture_rays = True
+    mi.render(scene, integrator=integrator)
+    integrator.capture_rays = False
+    captured, first_samples = integrator.last_rays, integrator.last_stats["aa_per_level"][0]
+    integrator.last_rays = None
+    bound = ray_casting_bound(scene, captured, lambda: mi.render(scene, integrator=integrator),
+                              settings.bound_rounds)
+    report("timing the first launch and the rest apart ...")
+    split = launch_split(scene, integrator, captured, first_samples, bound.coherent,
+                         settings.bound_rounds)
+    del captured
+    return {
+        "scene": str(scene_path), "defines": settings.defines,
+        "settings": settings.scene_settings,
+        "resolution": list(scene.sensors()[0].film().crop_size()),
+        "first_render_in_process_s": timing.first,
+        "second_render_in_process_s": timing.second,
+        "warm_render_s": timing.warm,
+        "warm_renders_s": timing.warm_all,
+        "rays": {k: timing.stats[k] for k in ("camera", "reflection", "refraction", "passthrough",
+                                              "shadow", "shadow_march", "refined", "total")},
+        "rays_per_second": timing.stats["total"] / timing.warm,
+        "aa_samples": timing.stats["aa_samples"],
+        "bound": {**{f"{name}_{figure}": values[name] for name in CASTS
+                     for figure, values in (("rays", bound.rays), ("s", bound.seconds_by_cast),
+                                            ("coherent", bound.coherent))},
+                  "seconds": bound.seconds, "render_s": bound.render_seconds,
+                  "ratio": bound.ratio, "ratios": bound.ratios},
+        "split": {"first_launch_samples": split.first_samples,
+                  "first_launch_s": split.first_seconds, "first_launch_bound_s": split.first_bound,
+                  "first_launch_ratio": split.first_ratio,
+                  "rest_s": split.rest_seconds, "rest_bound_s": split.rest_bound,
+                  "rest_ratio": split.rest_ratio,
+                  "launches": split.launches, "frozen_call_s": split.frozen_call_seconds},
+        "peak_rss_mib_this_process": peak_rss_mib(),
+    }
+
+
+def run(settings: BenchSettings, report=print) -> dict:
+    """All measurements; ``report`` receives progress lines."""
+    scene_path = Path(settings.scene)
+    results = {"machine": machine(), **headline(scene_path, settings, report)}
+    release_scenes()
+    if settings.fresh_processes:
+        report("fresh processes (warm and empty kernel cache) ...")
+        results["fresh_process"] = fresh_process_render(scene_path, settings.defines, False)
+        results["fresh_process_empty_cache"] = fresh_process_render(scene_path, settings.defines, True)
+    report("peak memory in child processes ...")
+    results["peak_rss_mib"] = {
+        str(res): child_peak_memory(scene_path, settings.defines,
+                                    dict(settings.scene_settings, res=res))
+        for res in settings.memory_resolutions}
+    report("scaling ...")
+    rows = scaling_table(scene_path, settings.defines, settings.scene_settings,
+                         {"res": settings.resolutions, "max_depth": settings.depths,
+                          "aa_max_depth": settings.aa_depths}, settings.repeats)
+    results["scaling"] = [{"parameter": r.parameter, "value": r.value, "seconds": r.seconds,
+                           "rays": r.rays, "rays_per_second": r.rays_per_second} for r in rows]
+    report("equal error against path ...")
+    results["equal_error"] = equal_error_speedup(*settings.equal_error, settings.repeats)
+    return results

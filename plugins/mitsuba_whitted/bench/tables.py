@@ -1,0 +1,85 @@
+"""The benchmark's figures as a plain-text table."""
+
+from __future__ import annotations
+
+from ..compare.sweep import RELATION_PREFIX, speedup_text
+from .bound import CASTS
+
+
+def _mode(coherent: bool) -> str:
+    return "coherent" if coherent else "incoherent"
+
+
+def _count(number: int, one: str, many: str) -> str:
+    return f"{number} {one if number == 1 else many}"
+
+
+def _split_lines(split: dict) -> list:
+    more = split["launches"] - 1
+    return [
+        f"    first camera launch       {split['first_launch_s']:8.3f} s, its rays' bound "
+        f"{split['first_launch_bound_s']:.3f} s: {split['first_launch_ratio']:.2f}"
+        f"  ({split['first_launch_samples']:,} samples, from the render's start)",
+        f"    the rest                  {split['rest_s']:8.3f} s, its rays' bound "
+        f"{split['rest_bound_s']:.3f} s: {split['rest_ratio']:.2f}"
+        f"  ({_count(more, 'later launch', 'later launches')} and all the render does"
+        " between and after them)",
+        f"    a frozen call's fixed cost {split['frozen_call_s'] * 1e3:7.2f} ms (Dr.Jit traverses"
+        f" the scene at every call) x {_count(split['launches'], 'launch', 'launches')} = "
+        f"{split['frozen_call_s'] * split['launches'] * 1e3:.1f} ms",
+    ]
+
+
+def format_table(results: dict) -> str:
+    """The benchmark as a plain-text table."""
+    rays = results["rays"]
+    bound = results["bound"]
+    width, height = results["resolution"]
+    lines = [
+        f"machine: {results['machine']}",
+        f"scene {results['scene']} at {width}x{height} {results['defines']}",
+        f"  warm render (median)        {results['warm_render_s']:8.3f} s",
+        f"  first render in process     {results['first_render_in_process_s']:8.3f} s"
+        f"  (second {results['second_render_in_process_s']:.3f} s)",
+    ]
+    if "fresh_process" in results:
+        fresh, empty = results["fresh_process"], results["fresh_process_empty_cache"]
+        lines += [
+            f"  whole render process        {fresh['process_seconds']:8.3f} s  "
+            f"(render {fresh['render_seconds']:.3f} s, kernel cache warm; the scene as "
+            "`mitsuba-whitted render` renders it)",
+            f"  same, empty kernel cache    {empty['process_seconds']:8.3f} s  "
+            f"(render {empty['render_seconds']:.3f} s)",
+        ]
+    lines += [
+        "  rays: " + ", ".join(f"{k} {v:,}" for k, v in rays.items()),
+        f"  rays/s                      {results['rays_per_second'] / 1e6:8.2f} M",
+        "  bound: " + " + ".join(
+            f"{name} {bound[name + '_rays']:,} rays {bound[name + '_s']:.3f} s"
+            f" ({_mode(bound[name + '_coherent'])})" for name in CASTS)
+        + f" = {bound['seconds']:.3f} s",
+        f"  bound / actual              {bound['ratio']:8.2f}  (median of {len(bound['ratios'])}"
+        f" rounds of render and casts: {min(bound['ratios']):.2f}"
+        f" to {max(bound['ratios']):.2f}; render {bound['render_s']:.3f} s in those rounds)",
+        *_split_lines(results["split"]),
+        "  peak RSS by film width: " + ", ".join(f"{res} px {mib:,.0f} MiB"
+                                               for res, mib in results["peak_rss_mib"].items()),
+        "  scaling (warm):",
+    ]
+    for row in results["scaling"]:
+        lines.append(f"    {row['parameter']:>12} = {str(row['value']):>5}  {row['seconds']:8.3f} s"
+                     f"  {row['rays']:>12,} rays  {row['rays_per_second'] / 1e6:6.2f} M rays/s")
+    eq = results["equal_error"]
+    relation = RELATION_PREFIX[eq["relation"]]
+    lines.append(f"  equal-error speed-up over path: {speedup_text(eq['speedup'], eq['relation'])}"
+                 f" on {eq['scene']}"
+                 f" at {eq['resolution']}^2, {eq['whitted']} (relMSE {eq['whitted_rel_mse']:.2e} in "
+                 f"{eq['whitted_seconds']:.3f} s; path needs {relation}{eq['path_spp']:.0f} spp, "
+                 f"{eq['path_seconds']:.3f} s; reference {eq['reference_spp']} spp, its own noise "
+                 f"relMSE {eq['reference_noise_rel_mse']:.1e})")
+    for row in eq["settings"]:
+        lines.append(f"    {row['whitted']:<46} relMSE {row['whitted_rel_mse']:.2e} "
+                     f"{row['whitted_seconds']:7.3f} s  path "
+                     f"{RELATION_PREFIX[row['relation']]}{row['path_spp']:.0f} spp "
+                     f"{row['path_seconds']:7.3f} s  {speedup_text(row['speedup'], row['relation'])}")
+    return "\n".join(lines)

@@ -1,0 +1,78 @@
+"""Render times in this process: the first renders apart from the warm
+ones, and the warm time as one setting at a time varies."""
+
+from __future__ import annotations
+
+import gc
+import statistics
+from dataclasses import dataclass
+from pathlib import Path
+
+import drjit as dr
+import mitsuba as mi
+
+from ..jit import timed
+from ..overrides import load_with
+
+
+@dataclass
+class RenderTiming:
+    first: float
+    second: float
+    warm: float
+    warm_all: list
+    stats: dict
+
+
+def time_render(scene: mi.Scene, integrator, repeats: int) -> RenderTiming:
+    """First render (in this process), the second, and the median of the
+    warm renders after them. The second is kept apart: it is the first to
+    replay the kernels the first recorded, and anything that makes it record
+    them again shows there."""
+    def render():
+        mi.render(scene, integrator=integrator)
+
+    (first, second), warm = timed(render, 2)[1], timed(render, repeats)[1]
+    return RenderTiming(first, second, statistics.median(warm), warm,
+                        dict(integrator.last_stats))
+
+
+@dataclass
+class ScalingRow:
+    parameter: str
+    value: object
+    seconds: float
+    rays: int
+
+    @property
+    def rays_per_second(self) -> float:
+        return self.rays / self.seconds
+
+
+def release_scenes() -> None:
+    """Free the scenes measured so far, and the memory cached for them.
+
+    Every call of a frozen kernel traverses all live instances of the
+    scene's plugin types, not only the scene's own, so scenes kept alive
+    would slow every later measurement; so would the memory cached from a
+    large render."""
+    gc.collect()
+    dr.flush_malloc_cache()
+
+
+def warm_timing(scene_path: Path, defines: dict, settings: dict, repeats: int) -> RenderTiming:
+    scene = load_with(scene_path, defines, settings)
+    return time_render(scene, scene.integrator(), repeats)
+
+
+def scaling_table(scene_path: Path, defines: dict, base: dict, sweeps: dict,
+                  repeats: int) -> list[ScalingRow]:
+    """Warm render time as each setting of ``sweeps`` varies alone from
+    ``base`` (settings of :func:`~mitsuba_whitted.overrides.load_with`)."""
+    rows = []
+    for parameter, values in sweeps.items():
+        for value in values:
+            release_scenes()
+            timing = warm_timing(scene_path, defines, dict(base, **{parameter: value}), repeats)
+            rows.append(ScalingRow(parameter, value, timing.warm, timing.stats["total"]))
+    return rows
