@@ -31,7 +31,7 @@ def test_render_report_scene_small(tmp_path):
     assert image.shape == (48, 48, 3)
     assert np.isfinite(image).all() and image.max() > 0.1
     line = result.stdout.strip().splitlines()[-1]
-    assert "48x48 rendered in" in line and "M rays/s" in line
+    assert "48x48 rendered and written in" in line and "M rays/s" in line
 
 
 #: Prints the registry id of every shape's BSDF and of every shape.
@@ -140,7 +140,7 @@ HOSTILE = """<scene version="3.0.0">
     ('<shape type="spheer"/>', 'failed to instantiate shape plugin of type "spheer": '
                                '[PluginManager] Plugin "spheer" not found!'),
     ('<shape type="sphere">', 'Start-end tags mismatch'),
-    (None, "No sensor specified!"),
+    (None, "has no sensor to render from; add a <sensor>"),
 ], ids=["include-missing", "include-broken", "texture-missing", "unknown-plugin", "malformed",
         "no-sensor"])
 def test_a_broken_scene_is_one_sentence(tmp_path, body, message):
@@ -166,7 +166,7 @@ def test_warnings_go_to_stderr_in_plain_lines(tmp_path):
         r"warning: whitted: adaptive anti-aliasing stopped before level 1: its \d+ samples "
         r"would pass the budget of 4 samples per pixel \('aa_budget'\); raise 'aa_budget' or "
         r"'aa_threshold'\.\n", result.stderr), result.stderr
-    assert result.stdout.startswith(f"{tmp_path / 'x.exr'}: 8x8 rendered in ")
+    assert result.stdout.startswith(f"{tmp_path / 'x.exr'}: 8x8 rendered and written in ")
     assert len(result.stdout.splitlines()) == 1
 
 

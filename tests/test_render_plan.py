@@ -160,3 +160,64 @@ def test_a_grid_within_a_raised_budget_renders_with_samples_traced_in_launches()
     assert_finite(image)
     centre, _ = render(loaded, aa="none")
     np.testing.assert_allclose(image, centre, rtol=2e-3)
+
+
+@pytest.mark.parametrize("suffix", [".exr", ".png"])
+def test_the_command_writes_a_film_band_by_band_as_the_film_would_hold_it(
+        tmp_path, monkeypatch, suffix):
+    """``mitsuba-whitted render`` hands whitted's bands to the file's
+    encoder and never holds a film of the whole image: the file holds what
+    ``mi.render`` develops, stored as the format stores it."""
+    from pathlib import Path
+
+    from mitsuba_whitted import cli
+    from mitsuba_whitted.imageio import read_image, stored_pixels
+
+    monkeypatch.setattr(render_plan, "BAND_SAMPLES", 40 * 16)
+    path = tmp_path / "scene.xml"
+    path.write_text(BANDED_SCENE)
+    out = tmp_path / f"out{suffix}"
+    assert cli.main(["render", str(path), "-o", str(out)]) == 0
+    developed = np.array(mi.render(mi.load_file(str(path))))
+    stored = read_image(out)
+    if suffix == ".png":
+        stored = np.round(stored * 255).astype(np.uint8)
+    np.testing.assert_array_equal(stored, stored_pixels(Path(out), developed))
+
+
+def test_the_command_refuses_a_film_it_cannot_hold_and_writes_nothing(tmp_path, monkeypatch,
+                                                                      capsys):
+    from mitsuba_whitted import cli
+
+    monkeypatch.setattr(render_plan, "available_memory", lambda: GIB)
+    path = tmp_path / "scene.xml"
+    path.write_text(BANDED_SCENE.replace('value="40"', 'value="60000"')
+                    .replace('value="30"', 'value="60000"'))
+    out = tmp_path / "out.exr"
+    assert cli.main(["render", str(path), "-o", str(out)]) == 2
+    error = capsys.readouterr().err
+    # The image's 43 GB in the file's encoder are the largest part.
+    assert error.count("\n") == 1 and "whitted: parameter 'film'" in error
+    assert "60000 x 60000" in error
+    assert not out.exists() and list(tmp_path.iterdir()) == [path]
+
+
+#: A 40 x 30 point-lit scene, adaptive anti-aliasing.
+BANDED_SCENE = """<scene version="3.0.0">
+    <integrator type="whitted"><string name="aa" value="adaptive"/>
+        <float name="aa_threshold" value="0.05"/></integrator>
+    <sensor type="perspective">
+        <transform name="to_world"><lookat origin="0, 1, 5" target="0, 0, 0" up="0, 1, 0"/>
+        </transform>
+        <film type="hdrfilm"><integer name="width" value="40"/>
+            <integer name="height" value="30"/><rfilter type="box"/></film>
+    </sensor>
+    <shape type="sphere"><float name="radius" value="0.8"/>
+        <bsdf type="diffuse"><rgb name="reflectance" value="0.7, 0.3, 0.2"/></bsdf></shape>
+    <shape type="rectangle">
+        <transform name="to_world"><scale value="4"/><rotate x="1" angle="-90"/>
+            <translate y="-1"/></transform>
+        <bsdf type="dielectric"/></shape>
+    <emitter type="point"><point name="position" x="1" y="3" z="3"/>
+        <rgb name="intensity" value="20"/></emitter>
+</scene>"""

@@ -58,22 +58,41 @@ def command_render(args) -> int:
     scene = _load_scene(args.scene, _parse_defines(args.define))
     loaded = time.perf_counter()
     integrator = scene.integrator()
+    if not scene.sensors():
+        raise UsageError(f"mitsuba-whitted: scene '{args.scene}' has no sensor to render "
+                         "from; add a <sensor>.")
     progress = Progress()
-    if hasattr(integrator, "progress"):
+    if hasattr(integrator, "render_rows"):
         integrator.progress = progress
-    image = mi.render(scene)
-    dr.sync_thread()
+        _render_whitted_to_file(scene, integrator, args.output)
+    else:
+        image = mi.render(scene)
+        dr.sync_thread()
+        write_image(args.output, image.numpy())
     rendered = time.perf_counter()
     progress.finish()
-    write_image(args.output, image.numpy())
-    height, width = image.shape[:2]
+    width, height = scene.sensors()[0].film().crop_size()
     seconds = rendered - loaded
     stats = getattr(integrator, "last_stats", {})
     rays = stats.get("total")
     ray_text = f", {rays / 1e6:.2f} M rays, {rays / seconds / 1e6:.1f} M rays/s" if rays else ""
-    print(f"{args.output}: {width}x{height} rendered in {seconds:.3f} s{ray_text} "
+    print(f"{args.output}: {width}x{height} rendered and written in {seconds:.3f} s{ray_text} "
           f"(scene loaded in {loaded - started:.2f} s)")
     return 0
+
+
+def _render_whitted_to_file(scene, integrator, output) -> None:
+    """The image band by band into the file's encoder (see
+    ``WhittedIntegrator.render_rows``): no film of the whole image is ever
+    held, so films larger than memory render."""
+    from .imageio import stored_bytes, write_rows
+
+    film = scene.sensors()[0].film()
+    width, height = film.crop_size()
+    channels = film.base_channels_count()
+    held = stored_bytes(output, width, height, channels)
+    write_rows(output, width, height, channels,
+               lambda put: integrator.render_rows(scene, put, held_bytes=held))
 
 
 def command_info(args) -> int:

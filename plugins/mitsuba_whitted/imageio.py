@@ -7,6 +7,7 @@ high dynamic range formats (EXR, HDR, PFM) keep linear float32 values.
 from __future__ import annotations
 
 import os
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -51,14 +52,48 @@ def write_image(path: str | Path, image: np.ndarray) -> None:
     """Write an (height, width, channels) linear image to ``path``, whole
     or not at all."""
     path = Path(path)
+    write_pixels(path, stored_pixels(path, image))
+
+
+def stored_pixels(path: Path, image: np.ndarray) -> np.ndarray:
+    """Linear pixels as the format of ``path`` stores them: 8-bit sRGB
+    (alpha linear) for PNG and JPEG, float32 otherwise."""
     image = np.ascontiguousarray(image, dtype=np.float32)
-    if path.suffix.lower() in LDR_SUFFIXES:
-        colour = to_8bit(image[..., :3])
-        if image.shape[2] == 4:  # alpha stays linear
-            alpha = np.round(np.clip(image[..., 3:], 0, 1) * 255).astype(np.uint8)
-            colour = np.concatenate([colour, alpha], axis=2)
-        image = colour
-    write_pixels(path, image)
+    if path.suffix.lower() not in LDR_SUFFIXES:
+        return image
+    colour = to_8bit(image[..., :3])
+    if image.shape[2] == 4:  # alpha stays linear
+        alpha = np.round(np.clip(image[..., 3:], 0, 1) * 255).astype(np.uint8)
+        colour = np.concatenate([colour, alpha], axis=2)
+    return colour
+
+
+def stored_bytes(path: str | Path, width: int, height: int, channels: int) -> int:
+    """How many bytes the pixels of such an image take as the format of
+    ``path`` stores them (before compression)."""
+    per_value = 1 if Path(path).suffix.lower() in LDR_SUFFIXES else 4
+    return width * height * channels * per_value
+
+
+def write_rows(path: str | Path, width: int, height: int, channels: int, render) -> None:
+    """Write a linear image that arrives in bands of rows: ``render(put)``
+    calls ``put(first_row, rows)`` with float32 arrays (rows, width,
+    channels), top to bottom. Each band is encoded as it arrives, so the
+    whole image is never in memory as floats; the file is written whole or
+    not at all, as by :func:`write_image`."""
+    import OpenImageIO as oiio
+
+    path = _known_format(path)
+    kind = oiio.FLOAT if path.suffix.lower() in HDR_SUFFIXES else oiio.UINT8
+    with _Encoder(path, oiio.ImageSpec(width, height, channels, kind)) as encoder:
+        def put(first_row: int, rows: np.ndarray) -> None:
+            pixels = stored_pixels(path, rows)
+            encoder.check(encoder.out.write_scanlines(first_row, first_row + len(rows), 0,
+                                                      pixels), "write_scanlines")
+
+        render(put)
+        with encoder.finished() as encoded:
+            write_atomically(path, lambda file: shutil.copyfileobj(encoded, file, 1 << 24))
 
 
 def write_pixels(path: str | Path, pixels: np.ndarray) -> None:
@@ -70,44 +105,58 @@ def write_pixels(path: str | Path, pixels: np.ndarray) -> None:
 
 
 def encode(path: Path, pixels: np.ndarray) -> bytes:
-    """The bytes of ``pixels`` in the format of ``path``'s suffix.
-
-    OpenImageIO writes them into an anonymous file in memory, so that no
-    failure of the disk meets it: it reports some (a PNG written on a full
-    disk still returns success, with the error kept aside), and its JPEG
-    writer ends the whole process on one. The disk then sees only plain
-    writes, whose errors Python raises."""
+    """The bytes of ``pixels`` in the format of ``path``'s suffix."""
     import OpenImageIO as oiio
 
     height, width, channels = pixels.shape
     kind = oiio.UINT8 if pixels.dtype == np.uint8 else oiio.FLOAT
-    out = oiio.ImageOutput.create(str(path))
-    if out is None:
-        raise cannot_write(path, f"OpenImageIO has no writer for it ({_oiio_reason(None, oiio)})")
-    memory = os.memfd_create("mitsuba-whitted-image")
-    try:
-        failed = _failed_step(out, f"/proc/self/fd/{memory}",
-                              oiio.ImageSpec(width, height, channels, kind), pixels)
-        if failed is not None:
-            raise cannot_write(path, f"OpenImageIO's {failed} failed while encoding it "
-                                     f"({_oiio_reason(out, oiio)})")
-        with open(memory, "rb", closefd=False) as encoded:
+    with _Encoder(path, oiio.ImageSpec(width, height, channels, kind)) as encoder:
+        encoder.check(encoder.out.write_image(pixels), "write_image")
+        with encoder.finished() as encoded:
             return encoded.read()
-    finally:
-        os.close(memory)
 
 
-def _failed_step(out, name: str, spec, pixels: np.ndarray) -> str | None:
-    """Open, write and close ``out``; the first step that fails (returns
-    false or leaves an error behind), or ``None``."""
-    for step, call in (("open", lambda: out.open(name, spec)),
-                       ("write_image", lambda: out.write_image(pixels)),
-                       ("close", out.close)):
-        if not call() or out.has_error:
-            if step != "close":
-                out.close()
-            return step
-    return None
+class _Encoder:
+    """An OpenImageIO writer (``out``) open on an anonymous file in memory.
+
+    OpenImageIO writes into memory so that no failure of the disk meets it:
+    it reports some (a PNG written on a full disk still returns success,
+    with the error kept aside), and its JPEG writer ends the whole process
+    on one. The disk then sees only plain writes, whose errors Python
+    raises."""
+
+    def __init__(self, path: Path, spec):
+        import OpenImageIO as oiio
+
+        self.oiio, self.path = oiio, path
+        self.out = oiio.ImageOutput.create(str(path))
+        if self.out is None:
+            raise cannot_write(path, f"OpenImageIO has no writer for it "
+                                     f"({_oiio_reason(None, oiio)})")
+        self.memory = os.memfd_create("mitsuba-whitted-image")
+        self.check(self.out.open(f"/proc/self/fd/{self.memory}", spec), "open")
+
+    def __enter__(self) -> "_Encoder":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        os.close(self.memory)
+
+    def check(self, succeeded: bool, step: str) -> None:
+        """Raise the sentence for ``step`` of the writer if it failed
+        (returned false or left an error behind)."""
+        if succeeded and not self.out.has_error:
+            return
+        reason_text = _oiio_reason(self.out, self.oiio)
+        if step != "close":
+            self.out.close()
+        raise cannot_write(self.path, f"OpenImageIO's {step} failed while encoding it "
+                                      f"({reason_text})")
+
+    def finished(self):
+        """Close the writer and check it; the encoded file, from its start."""
+        self.check(self.out.close(), "close")
+        return open(self.memory, "rb", closefd=False)
 
 
 def _oiio_reason(out, oiio) -> str:

@@ -51,7 +51,7 @@ def fresh_process_render(scene_path: Path, defines: dict, empty_cache: bool) -> 
         start = time.perf_counter()
         result = _run_child(args, env=env)
         wall = time.perf_counter() - start
-    render = float(re.findall(r" rendered in ([0-9.]+) s", result.stdout)[-1])
+    render = float(re.findall(r" rendered and written in ([0-9.]+) s", result.stdout)[-1])
     return {"process_seconds": wall, "render_seconds": render}
 
 

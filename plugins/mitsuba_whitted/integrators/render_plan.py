@@ -92,6 +92,9 @@ class Demand:
     #: ``launch_samples``.
     samples_parameter: str = "aa_budget"
     launch_parameter: str = "wavefront_size"
+    #: What the caller keeps as the bands arrive instead of a film (a file
+    #: being encoded in memory), in bytes.
+    held_bytes: int = 0
 
 
 def plan_render(demand: Demand, plugin: str = "whitted") -> RenderPlan:
@@ -105,7 +108,7 @@ def plan_render(demand: Demand, plugin: str = "whitted") -> RenderPlan:
     kept = min(rows * demand.width * demand.samples_per_pixel, BAND_SAMPLES)
     plan = RenderPlan(
         demand.width, demand.height, rows,
-        film_bytes=4 * demand.film_entries,
+        film_bytes=4 * demand.film_entries + demand.held_bytes,
         band_bytes=int(kept * SAMPLE_BYTES + rows * demand.width * PIXEL_BYTES),
         launch_bytes=demand.launch_samples * LAUNCH_SAMPLE_BYTES)
     _check_fits(plan, demand, available_memory(), plugin)
@@ -134,8 +137,9 @@ def _check_fits(plan: RenderPlan, demand: Demand, available: int | None, plugin:
     parts = {"film": plan.film_bytes, "band": plan.band_bytes, "launch": plan.launch_bytes}
     largest = max(parts, key=parts.get)
     parameter, advice = {
-        "film": ("film", "lower the film's 'width' and 'height', or render to a file with "
-                         "'mitsuba-whitted render', which needs no film of the whole image"),
+        "film": ("film", "lower the film's 'width' and 'height'" + (
+            ", or render to a file with 'mitsuba-whitted render', which needs no film of the "
+            "whole image" if demand.film_entries else "")),
         "band": (demand.samples_parameter, f"lower '{demand.samples_parameter}'"),
         "launch": (demand.launch_parameter, f"lower '{demand.launch_parameter}'"),
     }[largest]

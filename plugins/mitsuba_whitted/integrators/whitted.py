@@ -349,12 +349,13 @@ class WhittedIntegrator(mi.SamplingIntegrator):
                           prepare=lambda: film.prepare([]))
         return film.develop() if develop else mi.TensorXf()
 
-    def render_rows(self, scene: mi.Scene, take, sensor=0, seed=0) -> None:
+    def render_rows(self, scene: mi.Scene, take, sensor=0, seed=0, held_bytes: int = 0) -> None:
         """Render without a film of the whole image: ``take(first_row,
         rows)`` receives the image band by band, top to bottom, as float32
         NumPy arrays (rows, width, channels) holding what the film's
         ``develop`` would (RGB, or RGBA for an RGBA film), so that images
-        larger than memory reach a file one band at a time."""
+        larger than memory reach a file one band at a time. ``held_bytes``:
+        what ``take`` keeps meanwhile, for the memory check."""
         sensor = _sensor(scene, sensor)
         channels = _film_channels(sensor.film())
 
@@ -363,10 +364,10 @@ class WhittedIntegrator(mi.SamplingIntegrator):
             rows = np.stack([value.numpy() for value in values], axis=-1)
             take(band.first_row, rows.reshape(band.rows, band.width, channels - 1))
 
-        self.render_bands(scene, sensor, seed, take_band, film_entries=0)
+        self.render_bands(scene, sensor, seed, take_band, film_entries=0, held_bytes=held_bytes)
 
     def render_bands(self, scene: mi.Scene, sensor: mi.Sensor, seed, take,
-                     film_entries: int, prepare=None) -> None:
+                     film_entries: int, prepare=None, held_bytes: int = 0) -> None:
         """Trace the crop window band by band (:mod:`.render_plan`) and hand
         each band's radiance and alpha to ``take(band, radiance, alpha)``.
         ``film_entries``: the floats the caller's film holds; ``prepare()``
@@ -379,7 +380,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
                             "use 'grid', 'adaptive' or 'contrast'.")
         _settle_sampler(sensor)
         tracer = self._tracer_for(scene, int(seed))
-        plan = plan_render(self._demand(sensor.film(), tracer, film_entries))
+        plan = plan_render(self._demand(sensor.film(), tracer, film_entries, held_bytes))
         if prepare is not None:
             prepare()
         tracer.captured = [] if self.capture_rays else None
@@ -394,14 +395,15 @@ class WhittedIntegrator(mi.SamplingIntegrator):
                 total.add(count)
         self._record(tracer, total, plan)
 
-    def _demand(self, film: mi.Film, tracer, film_entries: int) -> Demand:
+    def _demand(self, film: mi.Film, tracer, film_entries: int, held_bytes: int) -> Demand:
         """What a render of ``film`` asks of memory (:mod:`.render_plan`)."""
         width, height = film.crop_size()
         kept = self.aa_budget if self.aa in ("adaptive", "contrast") else 1
         launch, parameter = tracer.launch_rays, "wavefront_size"
         if self.aa == "grid" and self.aa_samples ** 2 > launch:
             launch, parameter = self.aa_samples ** 2, "aa_samples"
-        return Demand(width, height, kept, launch, film_entries, launch_parameter=parameter)
+        return Demand(width, height, kept, launch, film_entries, launch_parameter=parameter,
+                      held_bytes=held_bytes)
 
     def _record(self, tracer, count: antialias.SampleCount, plan: RenderPlan) -> None:
         """Keep what the last render did for ``last_stats`` and friends."""
