@@ -110,3 +110,22 @@ def test_radiance_past_float32_is_refused_not_rendered_as_inf():
     holding Inf."""
     loaded = lit(light=point_light((0, -0.99, 0), 3e38))
     assert "NaN or infinite value" in render_refusal(loaded)
+
+
+@pytest.mark.parametrize("aa", ["none", "grid", "adaptive", "contrast"])
+def test_a_scene_with_nothing_to_shade_renders_black_in_every_mode(aa):
+    """No light and no emitter: every sample's radiance is one constant 0,
+    which the samplers must widen to their samples before summing them (the
+    grid and adaptive modes stopped with a Dr.Jit size error)."""
+    unlit = mi.load_dict(scene(sphere((0, 0, 0), 1.0, diffuse(0.5, 0.5, 0.5)),
+                               sensor=camera(size=8)))
+    image = np.array(mi.render(unlit, integrator=mi.load_dict(integrator(aa=aa))))
+    np.testing.assert_array_equal(image[..., :3], 0.0)
+
+
+def test_a_film_without_pixels_is_refused():
+    sensor = camera(size=8)
+    sensor["film"]["width"] = 0
+    message = render_refusal(mi.load_dict(scene(floor(), point_light((0, 3, 0)),
+                                                sensor=sensor)))
+    assert message.startswith("whitted: parameter 'film' has no pixels to render (0 x 8)")

@@ -85,15 +85,23 @@ def write_rows(path: str | Path, width: int, height: int, channels: int, render)
 
     path = _known_format(path)
     kind = oiio.FLOAT if path.suffix.lower() in HDR_SUFFIXES else oiio.UINT8
-    with _Encoder(path, oiio.ImageSpec(width, height, channels, kind)) as encoder:
-        def put(first_row: int, rows: np.ndarray) -> None:
-            pixels = stored_pixels(path, rows)
-            encoder.check(encoder.out.write_scanlines(first_row, first_row + len(rows), 0,
-                                                      pixels), "write_scanlines")
+    encoders = []  # made with the first band: a render refused before it meets no encoder
 
+    def put(first_row: int, rows: np.ndarray) -> None:
+        if not encoders:
+            encoders.append(_Encoder(path, oiio.ImageSpec(width, height, channels, kind)))
+        encoders[0].check(encoders[0].out.write_scanlines(
+            first_row, first_row + len(rows), 0, stored_pixels(path, rows)), "write_scanlines")
+
+    try:
         render(put)
-        with encoder.finished() as encoded:
+        if not encoders:
+            raise cannot_write(path, "the render gave no rows")
+        with encoders[0].finished() as encoded:
             write_atomically(path, lambda file: shutil.copyfileobj(encoded, file, 1 << 24))
+    finally:
+        for encoder in encoders:
+            encoder.__exit__()
 
 
 def write_pixels(path: str | Path, pixels: np.ndarray) -> None:

@@ -48,12 +48,14 @@ def sum_blocks(values, block: int):
     return _sum_runs(values, block)
 
 
-def full_width(values):
-    """``values`` with every component as wide as the widest. A component
-    broadcast from width 1 (``Color3f(x, y, 0.5)``) would be read out of
-    bounds by a gather and returned unsummed by ``dr.block_sum``; adding
-    full-width zeros widens it, and leaves a full-width one as it is."""
-    return values + dr.zeros(type(values), dr.width(values))
+def full_width(values, width: int | None = None):
+    """``values`` with every component ``width`` wide (default: as wide as
+    the widest). A component broadcast from width 1 (``Color3f(x, y,
+    0.5)``, or all of them where a scene has nothing to shade) would be read
+    out of bounds by a gather and returned unsummed by ``dr.block_sum``;
+    adding full-width zeros widens it, and leaves a full-width one as it
+    is."""
+    return values + dr.zeros(type(values), dr.width(values) if width is None else width)
 
 
 #: The dynamically sized array of each flat type: its gathers read a packet.

@@ -130,7 +130,7 @@ def _traced(shade: ShadeFn, positions: mi.Point2f, keys: mi.UInt32, lens=None) -
     0.5)``) writes past its one entry and corrupts the heap. ``lens``: the
     samples' lens points, for cameras with an aperture."""
     radiance, alpha = shade(positions, keys) if lens is None else shade(positions, keys, lens)
-    return full_width(radiance), full_width(alpha)
+    return full_width(radiance, dr.width(positions)), full_width(alpha, dr.width(positions))
 
 
 def _grid_positions(width: int, first_pixel: int, pixels: int, n: int, lens: bool = False):

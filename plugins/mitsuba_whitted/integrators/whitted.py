@@ -649,6 +649,10 @@ def _require_supported_variant():
 
 def _film_channels(film: mi.Film) -> int:
     """Values per pixel of the film's storage: RGB or RGBA, and a weight."""
+    width, height = film.crop_size()
+    check(width * height > 0, PLUGIN_NAME, "film",
+          f"has no pixels to render ({width} x {height}): give it a 'width' and 'height' of "
+          "at least 1")
     channels = film.base_channels_count() + 1
     if channels not in (4, 5):
         raise ParameterError(PLUGIN_NAME, "film",
