@@ -17,7 +17,7 @@ from contextlib import contextmanager
 import drjit as dr
 import mitsuba as mi
 
-from ..errors import caused_by
+from ..errors import caused_by, one_sentence
 
 
 @contextmanager
@@ -96,17 +96,22 @@ class FrozenKernel:
                 # it stops the render, and freezing stays on.
                 if caused_by(error, KeyboardInterrupt):
                     raise
-                problem = str(error).splitlines()[0]
+                problem = one_sentence(error).rstrip(".")
             self._disable(problem)
         if self.fallback is not None:
             return self.fallback[0]()(*args, **kwargs)
         return self.function(*args, **kwargs)
 
     def _disable(self, problem: str) -> None:
-        """Stop freezing, say so, and take back what the failed call added."""
+        """Stop freezing, say so, and take back what the failed call added.
+        A kernel with a fallback planned for the failure (a sensor Dr.Jit
+        cannot freeze) says so as information; any other failure is a
+        warning: the render goes on, slower."""
         self.enabled = False
-        instead = (self.fallback[1] if self.fallback is not None
-                   else f"tracing without frozen kernels in the {self.name}")
-        mi.Log(mi.LogLevel.Warn, f"whitted: {instead} ({problem}).")
+        if self.fallback is not None:
+            mi.Log(mi.LogLevel.Info, f"whitted: {self.fallback[1]} ({problem}).")
+        else:
+            mi.Log(mi.LogLevel.Warn, f"whitted: tracing without frozen kernels in the "
+                                     f"{self.name}, which is slower ({problem}).")
         if self.undo is not None:
             self.undo()()
