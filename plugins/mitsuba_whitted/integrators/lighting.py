@@ -35,6 +35,7 @@ PROBE_DIRECTION = (0.6, 0.0, 0.8)
 
 @dataclass
 class LightingSettings:
+    #: A colour; an ``mi.Color3f`` to differentiate it (``gradients``).
     ambient: mi.ScalarColor3f
     emitter_samples: int
     seed: int
@@ -168,7 +169,9 @@ class DirectLighting:
         self.needs = needs
         self.settings = settings
         self.shadows = shadows
-        self.use_ambient = dr.any(settings.ambient != 0)
+        # An ambient term of 0 is left out, unless its gradient is wanted.
+        self.use_ambient = dr.grad_enabled(settings.ambient) or bool(
+            dr.any(settings.ambient != 0, axis=None))
 
     def delta_samples(self, si, active) -> list:
         """``(ds, spectrum)`` towards each delta light: the directions the
