@@ -420,3 +420,18 @@ def test_image_is_unchanged_by_a_gradient():
     gradient_values(params, [key])
     after = np.array(mi.render(loaded))
     assert np.array_equal(before, after)
+
+
+def test_a_tile_too_large_for_memory_is_refused_naming_the_parameter(monkeypatch):
+    """The primal render fits; the tile traced again with AD would not."""
+    from mitsuba_whitted.integrators import render_plan
+    tile_bytes = gradients.TILE_FACTOR * (1 << 18) * gradients.TILE_SAMPLE_BYTES
+    monkeypatch.setattr(render_plan, "available_memory",
+                        lambda: render_plan.RESERVE + tile_bytes // 2)
+    loaded = mi.load_dict(gallery(size=8))
+    params = mi.traverse(loaded)
+    dr.enable_grad(params["key.intensity.value"])
+    params.update()
+    image = mi.render(loaded, params)
+    with pytest.raises(ParameterError, match="^whitted: parameter 'wavefront_size' makes this"):
+        dr.backward(image)

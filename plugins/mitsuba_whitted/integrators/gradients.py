@@ -16,15 +16,28 @@ How it is computed, band by band as ``render`` renders:
    parents), and Dr.Jit differentiates that combination. Backward, the
    band's adjoint pixels give each sample's adjoint; forward, each sample's
    tangent gives the band's tangent pixels.
-2. Each sample's radiance is traced again, differentiably: the wavefront
-   tracer, unfrozen, with the parameters' gradients enabled and loops and
-   branches evaluated (Dr.Jit 1.5 differentiates symbolic loops in reverse
-   mode only through stored iterations, and fails on several of the ones a
-   ray tree holds), in tiles of ``wavefront_size`` camera samples. The AD
-   graph of one tile is all that is kept, so memory follows the tile size,
-   not the film's. The gradient flows through the whole ray tree: Fresnel
-   weights, transmittances, the directions and hit points of reflected and
-   refracted rays, the shading, the lights and the shadow rays' crossings.
+2. Each sample's radiance is traced again, differentiably, by the
+   wavefront tracer unfrozen, in tiles of ``wavefront_size`` camera
+   samples: only one tile's AD graph is kept, so memory follows the tile
+   size, not the film's. The gradient flows through the whole ray tree:
+   Fresnel weights, transmittances, the directions and hit points of
+   reflected and refracted rays, the shading, the lights, and the shadow
+   rays' crossings of glass.
+
+The parameters being differentiated are replaced for the length of the
+derivative by fresh AD leaves of the same value (:class:`StandIns`), so
+that what plugins derive from a parameter on an update (a bitmap's
+texture) is derived again inside the scope in which ``mi.render`` runs the
+derivative; their gradients are then added to the parameters' in one step.
+
+Dr.Jit 1.5 sets the modes. Reverse-mode AD goes through symbolic loops only
+by replaying stored iterations, which on the LLVM backend mis-compiles a
+stored mask and fails on a state variable of width one and on nested loops:
+loops and branches are traced in evaluated mode. Forward mode evaluates
+calls too, as its traversal may not cross from a symbolic call's recording
+into the variables it read; reverse mode keeps them symbolic, as its
+evaluated form counts the derivative of a gather at one index (a texture's
+transform) once per lane.
 
 What is not differentiated: changes of visibility. A silhouette, the edge of
 a shadow, the edge of total internal reflection or of a texture's pattern
@@ -33,13 +46,12 @@ is a Dirac delta that only edge sampling or reparameterisation captures (as
 in Mitsuba's ``prb`` without them). The parameters that move geometry (a
 shape's vertices or placement, the sensor) are refused with one sentence.
 
-Determinism: each tile is traversed by Dr.Jit in the order in which its
-graph was built, and the tiles are summed in order. What remains is the
-scatter-adds of the backward pass (every lane that reads a texel or a
-constant adds to its gradient): with several threads their atomic adds land
-in a different order every run, so the backward pass runs on one thread,
-where they land in lane order. The same scene and adjoint give the same
-gradient bit for bit.
+Determinism: Dr.Jit traverses a graph in the order in which it was built,
+and the tiles are summed in order. What remains is the scatter-adds of the
+backward pass (every lane that reads a texel or a constant adds to its
+gradient): with several threads they land in a different order every run,
+so the backward pass of a tile runs on one thread, where they land in lane
+order. The same scene and adjoint give the same gradient bit for bit.
 """
 
 from __future__ import annotations
@@ -58,6 +70,15 @@ from .tracer import RayBatch
 PLUGIN_NAME = "whitted"
 #: A shape's parameters whose change moves its surface.
 GEOMETRY = ("vertex_positions", "to_world", "center", "radius", "height")
+#: Camera samples traced at once, in units of ``wavefront_size``: tracing a
+#: tile again with AD costs a fixed time for each generation of its trees,
+#: so tiles are wider than a primal launch.
+TILE_FACTOR = 4
+#: Bytes of a tile's AD graph per camera sample, with some margin (about
+#: 900 on the report's scene).
+TILE_SAMPLE_BYTES = 1280
+_NOT_GEOMETRY = ("which whitted does not differentiate (silhouettes would move); "
+                 "differentiate materials, textures, lights or the ambient term")
 
 
 def require_differentiable_variant() -> None:
@@ -82,17 +103,9 @@ def differentiated(params) -> list:
             continue
         name = key.rsplit(".", 1)[-1]
         if isinstance(node, mi.Shape) and name in GEOMETRY:
-            raise ParameterError(
-                PLUGIN_NAME, key,
-                "moves a shape, and whitted does not differentiate geometry (silhouettes, "
-                "and where rays meet surfaces, would move); differentiate materials, "
-                "textures, lights or 'integrator.ambient'")
+            raise ParameterError(PLUGIN_NAME, key, "moves a shape, " + _NOT_GEOMETRY)
         if isinstance(node, mi.Sensor):
-            raise ParameterError(
-                PLUGIN_NAME, key,
-                "belongs to the sensor, and whitted does not differentiate the camera "
-                "(every silhouette would move); differentiate materials, textures, lights "
-                "or 'integrator.ambient'")
+            raise ParameterError(PLUGIN_NAME, key, "belongs to the sensor, " + _NOT_GEOMETRY)
         found.append(key)
     return found
 
@@ -220,7 +233,7 @@ class Replay:
     def __init__(self, tracer, sensor: mi.Sensor):
         self.tracer = tracer
         self.sensor = sensor
-        self.tile = tracer.camera_batch
+        self.tile = tracer.camera_batch * TILE_FACTOR
 
     def _radiance(self, positions, keys, lens, part, reverse: bool) -> mi.Color3f:
         """Radiance of the samples ``part`` of ``positions``, to be

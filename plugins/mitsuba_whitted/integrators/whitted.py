@@ -1,5 +1,7 @@
 from __future__ import annotations
 
+import dataclasses
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
@@ -445,8 +447,12 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         sensor = _sensor(scene, sensor)
         self._note_sample_count(spp)
         seed = self._primal_seed(seed)
-        return sensor, seed, gradients.Replay(
-            self.make_tracer(scene, seed, differentiable=True), sensor), keys
+        replay = gradients.Replay(self.make_tracer(scene, seed, differentiable=True), sensor)
+        # The tile traced again with AD must fit beside the render.
+        demand = self._demand(sensor.film(), self._tracer_for(scene, seed), 0)
+        plan_render(dataclasses.replace(demand, launch_samples=replay.tile,
+                                        launch_sample_bytes=gradients.TILE_SAMPLE_BYTES))
+        return sensor, seed, replay, keys
 
     def _primal_seed(self, seed) -> int:
         """The seed whose image is differentiated. ``mi.render`` passes its
