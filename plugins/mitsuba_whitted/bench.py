@@ -43,6 +43,7 @@ from pathlib import Path
 import drjit as dr
 import mitsuba as mi
 
+from . import gradient_bench
 from .jit import timed
 from .overrides import load_with
 from .compare.scene_report import machine
@@ -609,13 +610,15 @@ class BenchSettings:
     #: reference's own noise (relMSE about 2e-6) stays below every error
     #: compared, and path's ladder reaches past Whitted's best settings.
     equal_error: tuple = (128, 65536, 16384)
+    #: Gradients at equal error: resolution, largest prb spp, prb seeds.
+    gradient: tuple = (64, 1024, 8)
 
     @classmethod
     def quick(cls, scene: Path = DEFAULT_SCENE, defines=None) -> "BenchSettings":
         """Small sizes and few repeats: every figure, in seconds."""
         return cls(scene, dict(defines or {}), resolution=96, repeats=2, bound_rounds=2,
                    resolutions=(64, 128), depths=(2, 6), aa_depths=(0, 3),
-                   memory_resolutions=(96,), equal_error=(32, 512, 64))
+                   memory_resolutions=(96,), equal_error=(32, 512, 64), gradient=(16, 4, 2))
 
     @property
     def scene_settings(self) -> dict:
@@ -698,6 +701,9 @@ def run(settings: BenchSettings, report=print) -> dict:
                            "rays": r.rays, "rays_per_second": r.rays_per_second} for r in rows]
     report("equal error against path ...")
     results["equal_error"] = equal_error_speedup(*settings.equal_error, settings.repeats)
+    results["gradient"] = gradient_bench.measure(
+        scene_path, settings.defines, settings.scene_settings, settings.repeats,
+        settings.memory_resolutions[0], settings.gradient, report)
     return results
 
 
@@ -777,4 +783,6 @@ def format_table(results: dict) -> str:
                      f"{row['whitted_seconds']:7.3f} s  path "
                      f"{RELATION_PREFIX[row['relation']]}{row['path_spp']:.0f} spp "
                      f"{row['path_seconds']:7.3f} s  {speedup_text(row['speedup'], row['relation'])}")
+    if "gradient" in results:
+        lines += gradient_bench.format_lines(results["gradient"])
     return "\n".join(lines)

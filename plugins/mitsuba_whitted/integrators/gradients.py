@@ -126,8 +126,8 @@ class StandIns:
 
     def __init__(self, params, keys: list, tangents: bool):
         self.view = params.copy() if keys else None
-        #: Whether the stand-ins take the parameters' gradients as tangents
-        #: (forward mode; backward, they start from none).
+        #: Forward mode: the parameters' gradients are tangents, and the
+        #: stand-ins' gradients are not added back.
         self.tangents = tangents
         #: The parameters as they were: copies that share their variables.
         self.originals = {key: _alias(params[key]) for key in keys}
@@ -140,11 +140,15 @@ class StandIns:
             leaf = dr.copy(dr.detach(original))
             dr.make_opaque(leaf)
             dr.enable_grad(leaf)
-            if self.tangents:
-                dr.set_grad(leaf, dr.detach(dr.grad(original)))
             self.stand_ins[key] = leaf
         self._install(self.stand_ins)
         return self
+
+    def tangents_of(self) -> list:
+        """``(stand-in, tangent)`` of each parameter, the tangent being the
+        parameter's gradient (forward mode)."""
+        return [(leaf, dr.detach(dr.grad(self.originals[key])))
+                for key, leaf in self.stand_ins.items()]
 
     def __exit__(self, *error) -> None:
         gradients = {key: dr.detach(dr.grad(leaf)) for key, leaf in self.stand_ins.items()}
@@ -251,18 +255,24 @@ class Replay:
             yield index_range(start, min(start + self.tile, count))
 
     def tangent(self, positions, keys, lens, sources: list) -> mi.Color3f:
-        """The samples' radiance tangent, from the tangents of ``sources``
-        (stand-ins of the parameters: the traversal starts there, within
-        the graph of this derivative, and keeps its edges and their
-        tangents for the next tile)."""
+        """The samples' radiance tangent, from ``sources``: pairs of a
+        stand-in of a parameter and its tangent. The traversal starts
+        there, within the graph of this derivative, and keeps its edges for
+        the next tile; the stand-ins hold their tangents only meanwhile,
+        since the frozen kernels take them as inputs, and a frozen call
+        records anew for each new kind of input."""
         count = dr.width(keys)
         tangent = dr.empty(mi.Color3f, count)
         for part in self._parts(count):
             radiance = self._radiance(positions, keys, lens, part, reverse=False)
             with dr.resume_grad():
-                dr.enqueue(dr.ADMode.Forward, *sources)
+                for leaf, value in sources:
+                    dr.set_grad(leaf, value)
+                dr.enqueue(dr.ADMode.Forward, *[leaf for leaf, _ in sources])
                 dr.traverse(dr.ADMode.Forward, flags=dr.ADFlag.ClearInterior)
                 dr.scatter(tangent, dr.detach(dr.grad(radiance)), part)
+                for leaf, _ in sources:
+                    dr.clear_grad(leaf)
             dr.eval(tangent)
         return tangent
 

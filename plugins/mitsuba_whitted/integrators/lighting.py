@@ -214,7 +214,9 @@ class DirectLighting:
     def sample_points(self, key: mi.UInt32, index: int):
         """Where the shadow rays of ray ``key`` sample the ``index``-th of
         ``needs.sampled_lights``: ``point(s)`` for the s-th of them."""
-        rotation = _unit_pair(key, self.settings.seed * 7919 + index)
+        # Modulo 2^32: any seed of mi.render is a valid one (a seed the
+        # size of a hash, as gradients may receive, overflowed).
+        rotation = _unit_pair(key, (self.settings.seed * 7919 + index) % (1 << 32))
 
         def point(sample) -> mi.Point2f:
             step = mi.Float(sample)

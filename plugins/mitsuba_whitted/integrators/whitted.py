@@ -236,6 +236,9 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     move geometry (a shape's vertices or placement, the sensor) are
     refused with one sentence. Mitsuba's ``dielectric`` keeps its index of
     refraction as a plain number, which no integrator can differentiate.
+    Forward mode: the frozen kernels take the parameters' tangents as
+    inputs, and record anew for each new literal tangent (about the time
+    of a first render); opaque tangents (``dr.make_opaque``) avoid it.
     The seed ``mi.render`` gives the gradient (a hash of the primal one)
     is taken back to that of the image it returned, so that the
     derivative is that image's, area lights included. A gradient renders
@@ -404,9 +407,10 @@ class WhittedIntegrator(mi.SamplingIntegrator):
 
         with gradients.StandIns(params, keys, tangents=True) as stand_ins, \
                 replay.tracer.scene_ref.holding(scene):
+            tangents = stand_ins.tangents_of()
 
-            def tangent(positions, keys, lens):
-                return replay.tangent(positions, keys, lens, stand_ins.leaves())
+            def tangent(positions, sample_keys, lens):
+                return replay.tangent(positions, sample_keys, lens, tangents)
 
             self.render_bands(scene, sensor, seed, take, width * height * (2 * channels - 1),
                               prepare=lambda: film.prepare([]),
