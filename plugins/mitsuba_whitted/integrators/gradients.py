@@ -17,9 +17,9 @@ How it is computed, band by band as ``render`` renders:
    band's adjoint pixels give each sample's adjoint; forward, each sample's
    tangent gives the band's tangent pixels.
 2. Each sample's radiance is traced again, differentiably, by the
-   wavefront tracer unfrozen, in tiles of ``wavefront_size`` camera
-   samples: only one tile's AD graph is kept, so memory follows the tile
-   size, not the film's. The gradient flows through the whole ray tree:
+   wavefront tracer unfrozen, in tiles of ``TILE_FACTOR x wavefront_size``
+   camera samples: only one tile's AD graph is kept, so memory follows the
+   tile size, not the film's. The gradient flows through the whole ray tree:
    Fresnel weights, transmittances, the directions and hit points of
    reflected and refracted rays, the shading, the lights, and the shadow
    rays' crossings of glass.

@@ -166,8 +166,9 @@ class WhittedIntegrator(mi.SamplingIntegrator):
        - |int|
        - Most rays of one generation in the wavefront tracer; the stack
          tracer, which keeps far less per ray outside its kernel, launches
-         up to 8 times as many camera samples at once. Wider batches are
-         split so memory stays bounded. (Default: 262144)
+         up to 8 times as many camera samples at once; a gradient traces
+         4 times as many again with AD, about a kilobyte each. Wider
+         batches are split so memory stays bounded. (Default: 262144)
 
     Whitted (1980) ray tracing for any Mitsuba scene. At each hit the
     radiance is the emission, the ambient term, the light of every delta
@@ -244,7 +245,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     derivative is that image's, area lights included. A gradient renders
     the image's camera samples again (with the frozen kernels, so the
     anti-aliasing refines where the image did) and traces their trees once
-    more with AD, ``wavefront_size`` camera samples at a time: about a
+    more with AD, 4 x ``wavefront_size`` camera samples at a time: about a
     kilobyte per sample of that tile is kept for the backward pass.
 
     .. tabs::
