@@ -274,26 +274,49 @@ def test_forward_mode_agrees_with_backward_mode():
             gradient[component], rel=1e-5)
 
 
-def test_gradients_are_bit_identical_from_run_to_run():
-    """Texels and constants read by many lanes get their gradients by
-    scatter-adds, whose order threads would change."""
-    described = gallery(size=48, aa="grid")
-    loaded = mi.load_dict(described)
+DETERMINISM_KEYS = ["ball.bsdf.diffuse_reflectance.texture.data",
+                    "ball.bsdf.specular_reflectance.value", "key.intensity.value"]
+
+
+def gradient_digests(runs: int) -> list:
+    """sha256 of the gradients of a 128 x 128 gallery (2 x 2 grid), ``runs``
+    times over."""
+    import hashlib
+
+    loaded = mi.load_dict(gallery(size=128, aa="grid"))
     params = mi.traverse(loaded)
-    keys = ["ball.bsdf.diffuse_reflectance.texture.data", "ball.bsdf.specular_reflectance.value",
-            "key.intensity.value"]
-    runs = []
-    for _ in range(3):
-        for key in keys:
+    digests = []
+    for _ in range(runs):
+        for key in DETERMINISM_KEYS:
             dr.enable_grad(params[key])
             params.set_dirty(key)
         params.update()
         image = mi.render(loaded, params)
         dr.backward(dr.sum(image, axis=None))
-        runs.append(b"".join(np.array(dr.grad(params[key])).tobytes() for key in keys))
-        for key in keys:
+        digests.append(hashlib.sha256(b"".join(np.array(dr.grad(params[key])).tobytes()
+                                                for key in DETERMINISM_KEYS)).hexdigest())
+        for key in DETERMINISM_KEYS:
             dr.clear_grad(params[key])
-    assert runs[0] == runs[1] == runs[2]
+    return digests
+
+
+def test_gradients_are_bit_identical_from_run_to_run():
+    """Texels and constants read by many lanes get their gradients by
+    scatter-adds, whose order threads would change: the same bits in
+    three runs, and in another process."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    digests = gradient_digests(3)
+    assert digests[0] == digests[1] == digests[2]
+    tests = Path(__file__).resolve().parent
+    child = subprocess.run(
+        [sys.executable, "-c", "import mitsuba_whitted; mitsuba_whitted.set_variant('llvm_ad_rgb');"
+         "from test_gradients import gradient_digests; print(gradient_digests(1)[0])"],
+        capture_output=True, text=True, timeout=300, cwd=tests)
+    assert child.returncode == 0, child.stderr
+    assert child.stdout.split()[-1] == digests[0]
 
 
 def test_gradients_reach_parameters_computed_from_others():
