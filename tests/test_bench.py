@@ -23,7 +23,7 @@ def test_bench_quick_writes_every_figure(tmp_path):
     figures = json.loads(out.read_text())
     for key in ("machine", "warm_render_s", "first_render_in_process_s", "second_render_in_process_s",
                 "rays", "rays_per_second", "bound", "fresh_process", "fresh_process_empty_cache", "peak_rss_mib",
-                "scaling", "equal_error"):
+                "scaling", "equal_error", "gradient"):
         assert key in figures, key
     rays = figures["rays"]
     assert rays["total"] == sum(rays[k] for k in ("camera", "reflection", "refraction",
@@ -52,8 +52,13 @@ def test_bench_quick_writes_every_figure(tmp_path):
     assert all(row["seconds"] > 0 for row in figures["scaling"])
     assert all(mib > 0 for mib in figures["peak_rss_mib"].values())
     assert figures["equal_error"]["speedup"] > 0
+    gradient = figures["gradient"]
+    assert gradient["parameters"] > 0 and gradient["ratio"] > 0
+    assert all(mib > 0 for mib in gradient["peak_rss_mib"].values())
+    assert gradient["equal_error"]["prb"][0]["rel_error"] > 0
     table = result.stdout
     assert "bound / actual" in table and "equal-error speed-up" in table
+    assert "gradient at equal error against prb" in table
     assert "first camera launch" in table and "a frozen call's fixed cost" in table
 
 

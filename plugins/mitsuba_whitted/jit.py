@@ -58,6 +58,15 @@ def full_width(values, width: int | None = None):
     return values + dr.zeros(type(values), dr.width(values) if width is None else width)
 
 
+def concat(parts: list):
+    """The entries of ``parts`` (arrays of one type, flat or nested such as
+    ``Point2f``) one after another."""
+    if dr.depth_v(parts[0]) > 1:
+        return type(parts[0])(*[dr.concat([part[axis] for part in parts])
+                                for axis in range(len(parts[0]))])
+    return dr.concat(parts)
+
+
 #: The dynamically sized array of each flat type: its gathers read a packet.
 _PACKET_TYPES = {dr.VarType.Float32: "ArrayXf", dr.VarType.Float64: "ArrayXf64",
                  dr.VarType.UInt32: "ArrayXu", dr.VarType.Int32: "ArrayXi"}

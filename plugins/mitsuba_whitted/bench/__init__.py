@@ -13,6 +13,8 @@ kernel cache as it is and once with an empty one.
   Mitsuba's ray casting) and the split of a render at its first launch;
 - :mod:`.processes`: fresh processes and their peak memory;
 - :mod:`.equal_error`: the equal-error speed-up over ``path``;
+- :mod:`.gradients`: the time and memory of a gradient, and its error
+  against ``prb``'s at equal time;
 - :mod:`.suite`: the settings and the run of all of them;
 - :mod:`.tables`: the figures as a table.
 """

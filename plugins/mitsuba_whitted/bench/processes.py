@@ -55,15 +55,26 @@ def fresh_process_render(scene_path: Path, defines: dict, empty_cache: bool) -> 
     return {"process_seconds": wall, "render_seconds": render}
 
 
-def child_peak_memory(scene_path: Path, defines: dict, settings: dict) -> float:
-    """Peak RSS (MiB) of a child process that loads and renders the scene
-    (with ``settings``, see :func:`~mitsuba_whitted.overrides.load_with`)."""
+#: What a child process of :func:`child_peak_memory` does with the scene.
+CHILD_WORK = {
+    "render": "mi.render(scene)",
+    "gradient": ("from mitsuba_whitted.bench.gradients import GradientStep\n"
+                 "GradientStep(scene)()"),
+}
+
+
+def child_peak_memory(scene_path: Path, defines: dict, settings: dict,
+                      work: str = "render") -> float:
+    """Peak RSS (MiB) of a child process that loads the scene (with
+    ``settings``, see :func:`~mitsuba_whitted.overrides.load_with`) and
+    renders it, or takes one gradient of it (``work``)."""
     code = ("import sys, json, mitsuba_whitted, mitsuba as mi, drjit as dr\n"
             "mitsuba_whitted.set_variant('llvm_ad_rgb')\n"
             "from mitsuba_whitted.bench.processes import peak_rss_mib\n"
             "from mitsuba_whitted.overrides import load_with\n"
             "scene = load_with(sys.argv[1], json.loads(sys.argv[2]), json.loads(sys.argv[3]))\n"
-            "mi.render(scene); dr.sync_thread()\n"
+            f"{CHILD_WORK[work]}\n"
+            "dr.sync_thread()\n"
             "print('peak_rss_mib', peak_rss_mib())\n")
     result = _run_child([sys.executable, "-c", code, str(scene_path), json.dumps(defines),
                          json.dumps(settings)])

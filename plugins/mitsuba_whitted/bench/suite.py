@@ -10,6 +10,7 @@ import mitsuba as mi
 from ..overrides import load_with
 from ..system import machine
 from .bound import CASTS, launch_split, ray_casting_bound
+from . import gradients
 from .equal_error import equal_error_speedup
 from .processes import child_peak_memory, fresh_process_render, peak_rss_mib
 from .timing import release_scenes, scaling_table, time_render
@@ -39,13 +40,15 @@ class BenchSettings:
     #: every error compared, and path's ladder must reach past Whitted's
     #: best settings.
     equal_error: tuple = (128, 65536, 16384)
+    #: Gradients at equal error: resolution, largest prb spp, prb seeds.
+    gradient: tuple = (64, 1024, 8)
 
     @classmethod
     def quick(cls, scene: Path = DEFAULT_SCENE, defines=None) -> "BenchSettings":
         """Small sizes and few repeats: every figure, in seconds."""
         return cls(scene, dict(defines or {}), resolution=96, repeats=2, bound_rounds=2,
                    resolutions=(64, 128), depths=(2, 6), aa_depths=(0, 3),
-                   memory_resolutions=(96,), equal_error=(32, 512, 64))
+                   memory_resolutions=(96,), equal_error=(32, 512, 64), gradient=(16, 4, 2))
 
     @property
     def scene_settings(self) -> dict:
@@ -125,4 +128,7 @@ def run(settings: BenchSettings, report=print) -> dict:
                            "rays": r.rays, "rays_per_second": r.rays_per_second} for r in rows]
     report("equal error against path ...")
     results["equal_error"] = equal_error_speedup(*settings.equal_error, settings.repeats)
+    results["gradient"] = gradients.measure(
+        scene_path, settings.defines, settings.scene_settings, settings.repeats,
+        settings.memory_resolutions[0], settings.gradient, report)
     return results

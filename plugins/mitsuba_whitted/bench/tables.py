@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from ..compare.sweep import RELATION_PREFIX, speedup_text
+from . import gradients
 from .bound import CASTS
 
 
@@ -82,4 +83,4 @@ def format_table(results: dict) -> str:
                      f"{row['whitted_seconds']:7.3f} s  path "
                      f"{RELATION_PREFIX[row['relation']]}{row['path_spp']:.0f} spp "
                      f"{row['path_seconds']:7.3f} s  {speedup_text(row['speedup'], row['relation'])}")
-    return "\n".join(lines)
+    return "\n".join(lines + gradients.format_lines(results["gradient"]))

@@ -47,7 +47,7 @@ class Phong(mi.BSDF):
        - |float|
        - Phong exponent (shininess) :math:`n \ge 0`; larger values give a
          smaller, sharper highlight, 0 a uniform glossy term. (Default: 30)
-       - |exposed|
+       - |exposed|, |differentiable|
 
     The classic Phong model (a Lambertian term plus a white highlight around
     the mirror direction), in the energy-normalized form of Lafortune and
@@ -116,7 +116,7 @@ class Phong(mi.BSDF):
                      mi.ParamFlags.Differentiable)
         callback.put("specular_reflectance", self.specular_reflectance,
                      mi.ParamFlags.Differentiable)
-        callback.put("exponent", self.exponent, mi.ParamFlags.NonDifferentiable)
+        callback.put("exponent", self.exponent, mi.ParamFlags.Differentiable)
 
     def parameters_changed(self, keys=()):
         with self._last_valid.updating(self):

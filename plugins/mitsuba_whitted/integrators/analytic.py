@@ -78,9 +78,20 @@ class AnalyticRefiner(ReadsScene):
         inside = active & si.is_valid() & (index < self.size)
         return inside & dr.gather(mi.Bool, self.analytic, index, inside)
 
-    @dr.syntax
     def intersect(self, ray: mi.Ray3f, active: mi.Bool,
                   coherent: bool = False) -> mi.SurfaceInteraction3f:
+        # Differentiated renders trace loops in evaluated mode, for reverse-
+        # mode AD (``gradients``), but a ray that carries no derivatives
+        # gives the loop none to follow: it keeps the faster symbolic one.
+        if dr.flag(dr.JitFlag.SymbolicLoops) or dr.grad_enabled(ray):
+            return self._intersect(ray, active, coherent)
+        with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True), \
+                dr.scoped_set_flag(dr.JitFlag.SymbolicCalls, True):
+            return self._intersect(ray, active, coherent)
+
+    @dr.syntax
+    def _intersect(self, ray: mi.Ray3f, active: mi.Bool,
+                   coherent: bool) -> mi.SurfaceInteraction3f:
         si = self.scene.ray_intersect(ray, mi.RayFlags.All, coherent, active)
         pending = self.on_proxy(si, active)
         # ``current`` only finds the next proxy behind a missed one; the exact

@@ -36,6 +36,7 @@ PROBE_DIRECTION = (0.6, 0.0, 0.8)
 
 @dataclass
 class LightingSettings:
+    #: A colour; an ``mi.Color3f`` to differentiate it (``gradients``).
     ambient: mi.ScalarColor3f
     emitter_samples: int
     seed: int
@@ -193,7 +194,9 @@ class DirectLighting:
         self.needs = needs
         self.settings = settings
         self.shadows = shadows
-        self.use_ambient = dr.any(settings.ambient != 0)
+        # An ambient term of 0 is left out, unless its gradient is wanted.
+        self.use_ambient = dr.grad_enabled(settings.ambient) or bool(
+            dr.any(settings.ambient != 0, axis=None))
 
     @property
     def shadow_slots(self) -> int:
@@ -244,7 +247,9 @@ class DirectLighting:
     def _sample_points(self, key: mi.UInt32, index: int):
         """Where the shadow rays of ray ``key`` sample the ``index``-th of
         ``needs.sampled_lights``: ``point(s)`` for the s-th of them."""
-        rotation = _unit_pair(key, self.settings.seed * 7919 + index)
+        # Modulo 2^32: any seed of mi.render is a valid one (a seed the
+        # size of a hash, as gradients may receive, overflowed).
+        rotation = _unit_pair(key, (self.settings.seed * 7919 + index) % (1 << 32))
 
         def point(sample) -> mi.Point2f:
             step = mi.Float(sample)

@@ -95,6 +95,9 @@ class Demand:
     #: What the caller keeps as the bands arrive instead of a film (a file
     #: being encoded in memory), in bytes.
     held_bytes: int = 0
+    #: Bytes a launch takes per camera sample (more where it is
+    #: differentiated: the AD graph of its ray trees).
+    launch_sample_bytes: int = LAUNCH_SAMPLE_BYTES
 
 
 def plan_render(demand: Demand, plugin: str = "whitted") -> RenderPlan:
@@ -110,7 +113,7 @@ def plan_render(demand: Demand, plugin: str = "whitted") -> RenderPlan:
         demand.width, demand.height, rows,
         film_bytes=4 * demand.film_entries + demand.held_bytes,
         band_bytes=int(kept * SAMPLE_BYTES + rows * demand.width * PIXEL_BYTES),
-        launch_bytes=demand.launch_samples * LAUNCH_SAMPLE_BYTES)
+        launch_bytes=demand.launch_samples * demand.launch_sample_bytes)
     _check_fits(plan, demand, available_memory(), plugin)
     return plan
 

@@ -35,9 +35,12 @@ class WavefrontTracer(Tracer):
     """Traces batches of camera rays to radiance, generation by generation."""
 
     def __init__(self, shader: HitShader, intersect, refiner=None,
-                 wavefront_size: int = 1 << 18):
+                 wavefront_size: int = 1 << 18, frozen: bool = True):
         super().__init__(shader, intersect, refiner, wavefront_size)
         self.fan_out = shader.fan_out
+        #: Whether generations run as frozen kernels; unfrozen, a trace can
+        #: be differentiated (``gradients``), which a frozen call cannot.
+        self.frozen = frozen
         #: One frozen kernel per combination of work: Dr.Jit 1.5 does not
         #: always record anew when only a Python flag argument changes
         #: (measured: a kernel recorded with children replayed without).
@@ -109,11 +112,8 @@ class WavefrontTracer(Tracer):
         work = self.shader.work(generation)
         if not work.any() and generation > 0:
             return dr.zeros(mi.Color3f, len(rays)), None, None, None
-        if work not in self._generation:
-            self._generation[work] = FrozenKernel(self._generation_kernel, "wavefront tracer",
-                                                  work)
-        kernel, arguments = self._generation[work], (len(rays), self.shader.scene,
-                                                      self._kernel_inputs, *rays.fields())
+        kernel, arguments = self._kernel(work), (len(rays), self.shader.scene,
+                                                 self._kernel_inputs, *rays.fields())
         outputs = kernel(*arguments, log)
         if log is not None and log.make_room():
             # Once more with room for the queries it counted: same rays, same results.
@@ -130,6 +130,15 @@ class WavefrontTracer(Tracer):
             return local, alpha, None, None
         children, slots = self._compact(candidates)
         return local, alpha, children, slots
+
+    def _kernel(self, work: HitWork):
+        """``kernel(width, *inputs)``: the generation kernel for ``work``."""
+        if not self.frozen:
+            return lambda width, *inputs: self._generation_kernel(*inputs, work)
+        if work not in self._generation:
+            self._generation[work] = FrozenKernel(self._generation_kernel, "wavefront tracer",
+                                                  work)
+        return self._generation[work]
 
     def _generation_kernel(self, scene, inputs, o, d, throughput, key, log, work: HitWork):
         """Everything one generation computes, as one traced function of its

@@ -1,5 +1,7 @@
 from __future__ import annotations
 
+import dataclasses
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
@@ -7,7 +9,7 @@ import numpy as np
 from ..jit import index_range
 from ..errors import ParameterError, VariantError, check, check_choice
 from ..parameters import LastValid, checked_numbers, describe
-from . import antialias, render_plan
+from . import antialias, gradients, render_plan
 from .render_plan import Demand, RenderPlan, plan_render
 from .scene_checks import check_emitters, check_placements
 from .lighting import LightingSettings
@@ -98,6 +100,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
        - Ambient light, multiplied by the diffuse albedo of each hit
          (``eval_diffuse_reflectance``; zero for BSDFs without a diffuse
          lobe). (Default: 0, no ambient term)
+       - |exposed|, |differentiable|
      * - shadows
        - |string|
        - ``"physical"``: shadow rays pass only surfaces that transmit
@@ -164,8 +167,9 @@ class WhittedIntegrator(mi.SamplingIntegrator):
        - |int|
        - Most rays of one generation in the wavefront tracer; the stack
          tracer, which keeps far less per ray outside its kernel, launches
-         up to 8 times as many camera samples at once. Wider batches are
-         split so memory stays bounded. (Default: 262144)
+         up to 8 times as many camera samples at once; a gradient traces
+         4 times as many again with AD, about a kilobyte each. Wider
+         batches are split so memory stays bounded. (Default: 262144)
 
     Whitted (1980) ray tracing for any Mitsuba scene. At each hit the
     radiance is the emission, the ambient term, the light of every delta
@@ -208,6 +212,42 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     before each render, and the placements of sensors and shapes when the
     scene is set up: NaN, infinite or negative amounts of light are refused,
     naming the object.
+
+    Gradients: ``mi.render(scene, params)`` with parameters whose
+    gradients are enabled, then ``dr.backward`` or ``dr.forward``, gives
+    the exact derivative of the image (no samples, no noise; the same bits
+    on every run), for every ``aa`` and ``shadows`` mode
+    (:mod:`.gradients` says how). It flows through the whole ray tree,
+    through the mirrors, glass and shadow rays that reach a parameter:
+
+    - BSDFs: diffuse and specular reflectance, the Phong exponent,
+      conductor reflectance, dielectric transmittance, a thin dielectric's
+      index, a blend's weight, and any texture they use;
+    - textures: bitmap data (a bitmap loaded with ``format`` ``variant``:
+      8-bit pixels are stored as integers), ``tartan`` colour and
+      placement, ``sphere_map`` centre and placement, ``planar_map``
+      bounds;
+    - emitters: point and spot intensity and position (the placement of a
+      spot), environment and area radiance;
+    - the ``ambient`` term.
+
+    Not differentiated: changes of visibility, as in Mitsuba's ``prb``
+    without reparameterisation. Silhouettes, shadow edges, the edge of
+    total internal reflection, the edges of a tartan's squares (its
+    ``frequency`` moves nothing else) stay where they are. Parameters that
+    move geometry (a shape's vertices or placement, the sensor) are
+    refused with one sentence. Mitsuba's ``dielectric`` keeps its index of
+    refraction as a plain number, which no integrator can differentiate.
+    Forward mode: the frozen kernels take the parameters' tangents as
+    inputs, and record anew for each new literal tangent (about the time
+    of a first render); opaque tangents (``dr.make_opaque``) avoid it.
+    The seed ``mi.render`` gives the gradient (a hash of the primal one)
+    is taken back to that of the image it returned, so that the
+    derivative is that image's, area lights included. A gradient renders
+    the image's camera samples again (with the frozen kernels, so the
+    anti-aliasing refines where the image did) and traces their trees once
+    more with AD, 4 x ``wavefront_size`` camera samples at a time: about a
+    kilobyte per sample of that tile is kept for the backward pass.
 
     .. tabs::
 
@@ -296,18 +336,20 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     # ------------------------------------------------------------------ setup
 
     def make_tracer(self, scene: mi.Scene, seed: int = 0, wavefront: bool = False,
-                    needs: SceneNeeds = None):
+                    needs: SceneNeeds = None, differentiable: bool = False):
         """A tracer of ``scene`` with this integrator's settings
         (:func:`.tracing.build_tracer`; ``wavefront`` asks for the wavefront
-        tracer, e.g. to capture each generation's rays). ``needs`` replaces
-        ``analyse(scene)``, e.g. to trace with another absolute offset
-        length (its ``scale``)."""
+        tracer, e.g. to capture each generation's rays, ``differentiable``
+        for one whose traces Dr.Jit can differentiate, ambient term
+        included). ``needs`` replaces ``analyse(scene)``, e.g. to trace with
+        another absolute offset length (its ``scale``)."""
         check_placements(scene)
         depth = UNBOUNDED_DEPTH if self.max_depth == -1 else self.max_depth
+        ambient = self._exposed.arrays["ambient"] if differentiable else self.ambient
         return build_tracer(scene, needs or analyse(scene), self.shadows,
-                            LightingSettings(self.ambient, self.emitter_samples, seed),
+                            LightingSettings(ambient, self.emitter_samples, seed),
                             TreeSettings(depth, self.min_throughput, self.hide_emitters),
-                            self.wavefront_size, wavefront)
+                            self.wavefront_size, wavefront, differentiable)
 
     def _tracer_for(self, scene: mi.Scene, seed: int):
         """The last render's tracer if nothing it was built from changed
@@ -336,6 +378,8 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     def render(self, scene: mi.Scene, sensor=0, seed=0, spp=0,
                develop: bool = True, evaluate: bool = True):
         sensor = _sensor(scene, sensor)
+        seed = seed_value(seed)
+        self._last.seed = seed
         self._note_sample_count(spp)
         film = sensor.film()
         channels = _film_channels(film)
@@ -349,6 +393,83 @@ class WhittedIntegrator(mi.SamplingIntegrator):
                           prepare=lambda: film.prepare([]))
         return film.develop() if develop else mi.TensorXf()
 
+    # ------------------------------------------------------------- gradients
+
+    def render_forward(self, scene: mi.Scene, params, sensor=0, seed=0, spp=0):
+        """The derivative of ``render``'s image along the tangents of the
+        parameters of ``params`` (:mod:`.gradients`), as a film's image."""
+        sensor, seed, replay, keys = self._gradient_setup(scene, params, sensor, seed, spp)
+        film = sensor.film()
+        channels = _film_channels(film)
+        width, height = film.crop_size()
+
+        def take(band, radiance, alpha):
+            tangent = gradients.band_tangent(radiance)
+            film.put_block(_image_block(film, band, tangent, dr.zeros(mi.Float, band.pixels),
+                                        channels))
+
+        with gradients.StandIns(params, keys, tangents=True) as stand_ins, \
+                replay.tracer.scene_ref.holding(scene):
+            tangents = stand_ins.tangents_of()
+
+            def tangent(positions, sample_keys, lens):
+                return replay.tangent(positions, sample_keys, lens, tangents)
+
+            self.render_bands(scene, sensor, seed, take, width * height * (2 * channels - 1),
+                              prepare=lambda: film.prepare([]),
+                              shader=gradients.recording_shader(CameraShader, tangent))
+        return film.develop()
+
+    def render_backward(self, scene: mi.Scene, params, grad_in, sensor=0, seed=0,
+                        spp=0) -> None:
+        """Add to the gradients of the parameters of ``params`` the
+        derivative of ``render``'s image weighed by ``grad_in``, an image
+        of adjoints (:mod:`.gradients`)."""
+        sensor, seed, replay, keys = self._gradient_setup(scene, params, sensor, seed, spp)
+        adjoint = _adjoint_pixels(grad_in, sensor.film())
+        shaders = []
+
+        def shader(*args):
+            shaders.append(gradients.recording_shader(CameraShader)(*args))
+            return shaders[-1]
+
+        with gradients.StandIns(params, keys, tangents=False) as stand_ins, \
+                replay.tracer.scene_ref.holding(scene):
+
+            def take(band, radiance, alpha):
+                launches = shaders[-1].launches
+                samples = gradients.sample_adjoints(launches, radiance, adjoint(band))
+                launches.clear()
+                replay.backward(*samples, stand_ins.leaves())
+
+            self.render_bands(scene, sensor, seed, take, film_entries=0, shader=shader)
+
+    def _gradient_setup(self, scene: mi.Scene, params, sensor, seed, spp):
+        """The sensor, the seed of the image to differentiate, a
+        :class:`.gradients.Replay` of its samples and the keys of the
+        differentiated parameters, once the variant and ``params`` are found
+        differentiable."""
+        gradients.require_differentiable_variant()
+        keys = gradients.differentiated(params)
+        sensor = _sensor(scene, sensor)
+        self._note_sample_count(spp)
+        seed = self._primal_seed(seed)
+        replay = gradients.Replay(self.make_tracer(scene, seed, differentiable=True), sensor)
+        # The tile traced again with AD must fit beside the render.
+        demand = self._demand(sensor.film(), self._tracer_for(scene, seed), 0, 0)
+        plan_render(dataclasses.replace(demand, launch_samples=replay.tile,
+                                        launch_sample_bytes=gradients.TILE_SAMPLE_BYTES))
+        return sensor, seed, replay, keys
+
+    def _primal_seed(self, seed) -> int:
+        """The seed whose image is differentiated. ``mi.render`` passes its
+        differential phase a seed of its own, a hash of the primal one
+        (``sample_tea_32(seed, 1)``): whitted maps that hash of the last
+        render's seed back to it, so that the derivative is that of the
+        image ``mi.render`` returned."""
+        value = seed_value(seed)
+        return self._last.seed if value == _differential_seed(self._last.seed) else value
+
     def render_rows(self, scene: mi.Scene, take, sensor=0, seed=0, held_bytes: int = 0) -> None:
         """Render without a film of the whole image: ``take(first_row,
         rows)`` receives the image band by band, top to bottom, as float32
@@ -357,6 +478,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         larger than memory reach a file one band at a time. ``held_bytes``:
         what ``take`` keeps meanwhile, for the memory check."""
         sensor = _sensor(scene, sensor)
+        seed = seed_value(seed)
         channels = _film_channels(sensor.film())
 
         def take_band(band, radiance, alpha):
@@ -367,26 +489,28 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         self.render_bands(scene, sensor, seed, take_band, film_entries=0, held_bytes=held_bytes)
 
     def render_bands(self, scene: mi.Scene, sensor: mi.Sensor, seed, take,
-                     film_entries: int, prepare=None, held_bytes: int = 0) -> None:
+                     film_entries: int, prepare=None, held_bytes: int = 0,
+                     shader=None) -> None:
         """Trace the crop window band by band (:mod:`.render_plan`) and hand
         each band's radiance and alpha to ``take(band, radiance, alpha)``.
         ``film_entries``: the floats the caller's film holds; ``prepare()``
         runs once the render is known to fit, before anything large is
-        allocated."""
+        allocated; ``shader(tracer, sensor, progress)`` makes what traces the
+        camera samples (a :class:`CameraShader` if not given)."""
         check_emitters(scene)
         if self.aa == "none" and _has_aperture(sensor):
             self._note_once("pinhole", "whitted: aa='none' traces each pixel from the centre "
                             "of the thin lens's aperture, so the image has no depth of field; "
                             "use 'grid', 'adaptive' or 'contrast'.")
         _settle_sampler(sensor)
-        tracer = self._tracer_for(scene, int(seed))
+        tracer = self._tracer_for(scene, seed)
         plan = plan_render(self._demand(sensor.film(), tracer, film_entries, held_bytes))
         if prepare is not None:
             prepare()
         tracer.captured = [] if self.capture_rays else None
         total = antialias.SampleCount()
-        with dr.suspend_grad(), tracer.scene_ref.holding(scene):
-            shade = CameraShader(tracer, sensor, self.progress)
+        with tracer.scene_ref.holding(scene):
+            shade = (shader or CameraShader)(tracer, sensor, self.progress)
             for index, band in enumerate(plan.bands()):
                 shade.label = _band_label(index, plan.band_count)
                 radiance, alpha, count = self._sample_pixels(band, shade, total.refined)
@@ -457,7 +581,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         the last render where it still fits (``needs``: see
         ``make_tracer``; a tracer made for them is not kept)."""
         if needs is None:
-            tracer = self._tracer_for(scene, int(seed))
+            tracer = self._tracer_for(scene, seed_value(seed))
         else:
             tracer = self.make_tracer(scene, seed, needs=needs)
         keys = dr.arange(mi.UInt32, dr.width(ray.o))
@@ -478,10 +602,11 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     def traverse(self, callback):
         """The numeric settings, which an update may change (the integrator
         then traces with new kernels), and ``aa`` and ``shadows``, which it
-        may not: they choose what kind of render this is."""
+        may not: they choose what kind of render this is. ``ambient`` is
+        differentiable."""
         flags = mi.ParamFlags.NonDifferentiable
         for name, value in self._exposed.arrays.items():
-            callback.put(name, value, flags)
+            callback.put(name, value, mi.ParamFlags.Differentiable if name == "ambient" else flags)
         for name in ("aa", "shadows"):
             callback.put(name, getattr(self, name), flags | mi.ParamFlags.ReadOnly)
 
@@ -522,6 +647,12 @@ class CameraShader:
         self.label = "camera samples"
 
     def __call__(self, positions: mi.Point2f, keys: mi.UInt32, lens: mi.Point2f = None):
+        # The frozen kernels take the scene, whose parameters may carry
+        # gradients: nothing here is differentiated (``gradients``).
+        with dr.suspend_grad():
+            return self._trace(positions, keys, lens)
+
+    def _trace(self, positions: mi.Point2f, keys: mi.UInt32, lens: mi.Point2f = None):
         total = dr.width(positions)
         if total <= self.batch:
             # The whole batch in one launch (every adaptive level after the
@@ -587,13 +718,50 @@ def _as_value(array):
 class _LastRender:
     """What the last render left (see the integrator's ``last_*``)."""
 
-    __slots__ = ("built_from", "tracer", "stats", "sample_map", "rays", "noted")
+    __slots__ = ("built_from", "tracer", "stats", "sample_map", "rays", "noted", "seed")
 
     def __init__(self):
         self.built_from = self.tracer = self.sample_map = self.rays = None
+        #: The seed of the last ``render`` (``gradients`` differentiate its image).
+        self.seed = 0
         self.stats = {}
         #: Subjects of the warnings given once (``_note_once``).
         self.noted = set()
+
+
+def seed_value(seed) -> int:
+    """A render seed as a Python number: ``mi.render`` passes what its
+    caller gave, an int or an ``mi.UInt32`` (always one for gradients)."""
+    value = int(seed[0]) if dr.is_array_v(seed) else int(seed)
+    check(0 <= value < 1 << 32, PLUGIN_NAME, "seed",
+          f"must be a whole number from 0 to 2^32 - 1 (got {value})")
+    return value
+
+
+def _differential_seed(seed: int) -> int:
+    """The seed ``mi.render`` derives for the differential phase from ``seed``."""
+    return int(mi.sample_tea_32(mi.UInt32(seed), mi.UInt32(1))[0][0])
+
+
+def _adjoint_pixels(grad_in, film: mi.Film):
+    """``adjoint(band)``: the radiance adjoints of ``band``'s pixels, from
+    ``grad_in``, an adjoint of the film's developed image (its alpha, a
+    coverage, has no derivative)."""
+    width, height = film.crop_size()
+    channels = _film_channels(film) - 1
+    shape = tuple(grad_in.shape)
+    if shape != (height, width, channels):
+        raise ParameterError(PLUGIN_NAME, "grad_in",
+                             f"must have the shape of the image, {(height, width, channels)} "
+                             f"(got {shape})")
+    values = dr.detach(grad_in.array)
+
+    def adjoint(band) -> mi.Color3f:
+        base = (dr.arange(mi.UInt32, band.pixels) + dr.opaque(mi.UInt32, band.first_pixel)) \
+            * channels
+        return mi.Color3f(*[dr.gather(mi.Float, values, base + c) for c in range(3)])
+
+    return adjoint
 
 
 def _sensor(scene: mi.Scene, sensor) -> mi.Sensor:

@@ -33,14 +33,23 @@ def read_to_world(props: mi.Properties, plugin: str) -> mi.AffineTransform4f:
 
 def inverse_rows(to_world: mi.AffineTransform4f, plugin: str) -> mi.Float:
     """The top three rows of ``to_world⁻¹`` as one array of 12 entries
-    (row-major), or a :class:`ParameterError` unless ``to_world`` is a
-    finite, invertible affine map.
+    (row-major), differentiable with ``to_world``, or a
+    :class:`ParameterError` unless ``to_world`` is a finite, invertible
+    affine map.
 
     One flat array, not a transform: Dr.Jit traverses a Python plugin's
     attributes on every call of a frozen kernel, at a cost that grows with
     the number of arrays it finds (a transform holds 16 nested ones)."""
     _, inverse = checked_transform(to_world, plugin)
-    return device_array(mi.Float, inverse[:3].astype(np.float32))
+    rows = device_array(mi.Float, inverse[:3].astype(np.float32))
+    if not dr.grad_enabled(to_world):
+        return rows
+    # Differentiated (``whitted`` gradients): the value stays the float64
+    # inverse's, the derivative is that of Dr.Jit's inverse.
+    inverted = dr.rcp(to_world.matrix)
+    traced = dr.concat([mi.Float(inverted[row][column]) for row in range(3)
+                        for column in range(4)])
+    return rows + (traced - dr.detach(traced))
 
 
 def apply_rows(rows: mi.Float, v, translate: bool) -> mi.Vector3f:

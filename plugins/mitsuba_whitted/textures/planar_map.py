@@ -34,12 +34,12 @@ class PlanarMap(uv_remap_base()):
        - |float|
        - World x range the image spans once: finite, x_max > x_min, and a
          span float32 can divide by. (Default: -1, 1)
-       - |exposed|
+       - |exposed|, |differentiable|
 
      * - z_min, z_max
        - |float|
        - World z range the image spans once, as for x. (Default: -1, 1)
-       - |exposed|
+       - |exposed|, |differentiable|
 
     The COSC363 ray tracer's mapping for its ground plane, for the world
     point p = (x, y, z), written exactly as it was:
@@ -104,7 +104,7 @@ class PlanarMap(uv_remap_base()):
     def traverse(self, callback):
         self.traverse_texture(callback)
         for name in DEFAULT_BOUNDS:
-            callback.put(name, getattr(self, name), mi.ParamFlags.NonDifferentiable)
+            callback.put(name, getattr(self, name), mi.ParamFlags.Differentiable)
 
     def to_string(self):
         bounds = ", ".join(f"{name} = {dr.slice(getattr(self, name), 0)}" for name in DEFAULT_BOUNDS)

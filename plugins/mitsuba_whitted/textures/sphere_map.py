@@ -73,14 +73,14 @@ class SphereMap(uv_remap_base()):
        - If given (three finite numbers), the direction is
          ``normalize(p − center)`` for the surface point p; otherwise it is
          the shading normal. (Default: none)
-       - |exposed|
+       - |exposed|, |differentiable|
 
      * - to_world
        - |transform|
        - Orientation of the mapping frame: the direction d is mapped as
          ``to_world⁻¹ · d`` before the formulas below; any invertible affine
          map. (Default: identity)
-       - |exposed|
+       - |exposed|, |differentiable|
 
     The COSC363 ray tracer's "non planar texturing": texture coordinates come from a
     unit direction n, by default the shading normal, and the nested texture
@@ -153,8 +153,8 @@ class SphereMap(uv_remap_base()):
     def traverse(self, callback):
         self.traverse_texture(callback)
         if self.center is not None:
-            callback.put("center", self.center, mi.ParamFlags.NonDifferentiable)
-        callback.put("to_world", self._to_world.value, mi.ParamFlags.NonDifferentiable)
+            callback.put("center", self.center, mi.ParamFlags.Differentiable)
+        callback.put("to_world", self._to_world.value, mi.ParamFlags.Differentiable)
 
     def to_string(self):
         return (f"SphereMap[\n  mapping = {self.mapping},\n"

@@ -31,7 +31,8 @@ class Tartan(mi.Texture):
      * - frequency
        - |float|
        - Angular frequency f of the squares, in radians per unit of texture
-         space; must be > 0. (Default: 3)
+         space; must be > 0. It only moves the squares' edges, where the
+         colour jumps: like a silhouette, not differentiated. (Default: 3)
        - |exposed|
 
      * - color
@@ -44,7 +45,7 @@ class Tartan(mi.Texture):
        - Places the pattern in the world: it is evaluated at
          ``to_world⁻¹ · p`` for the surface point p; any invertible affine
          map. (Default: identity)
-       - |exposed|
+       - |exposed|, |differentiable|
 
     The procedural texture of the COSC363 ray tracer. At the (texture-space)
     point p = (x, y, z) the colour is ``color`` where sin(f·x) > 0 and
@@ -105,7 +106,7 @@ class Tartan(mi.Texture):
     def traverse(self, callback):
         callback.put("frequency", self.frequency, mi.ParamFlags.NonDifferentiable)
         callback.put("color", self.color, mi.ParamFlags.Differentiable)
-        callback.put("to_world", self._to_world.value, mi.ParamFlags.NonDifferentiable)
+        callback.put("to_world", self._to_world.value, mi.ParamFlags.Differentiable)
 
     def eval(self, si, active=True):
         p = apply_rows(self.to_local, si.p, translate=True)

@@ -1,0 +1,340 @@
+"""Derivatives of a ``whitted`` image with respect to the scene's parameters.
+
+``mi.render(scene, params)`` hands the derivative of its image to the
+integrator's ``render_forward`` (a tangent image from the parameters'
+tangents) and ``render_backward`` (the parameters' gradients from an
+adjoint image). A Whitted image is a deterministic function of the scene, so
+both are exact: no samples, no noise.
+
+How it is computed, band by band as ``render`` renders:
+
+1. The camera samples are placed by the render's own anti-aliasing, with
+   its own frozen tracer, so that its choices (which cells to split, which
+   pixels to refine) are those of the image. Each launch of samples comes
+   back as a fresh AD leaf: once its choices are made, a sampler combines
+   samples into pixels linearly (block means, refined cells replacing their
+   parents), and Dr.Jit differentiates that combination. Backward, the
+   band's adjoint pixels give each sample's adjoint; forward, each sample's
+   tangent gives the band's tangent pixels.
+2. Each sample's radiance is traced again, differentiably, by the
+   wavefront tracer unfrozen, in tiles of ``TILE_FACTOR x wavefront_size``
+   camera samples: only one tile's AD graph is kept, so memory follows the
+   tile size, not the film's. The gradient flows through the whole ray tree:
+   Fresnel weights, transmittances, the directions and hit points of
+   reflected and refracted rays, the shading, the lights, and the shadow
+   rays' crossings of glass.
+
+The parameters being differentiated are replaced for the length of the
+derivative by fresh AD leaves of the same value (:class:`StandIns`), so
+that what plugins derive from a parameter on an update (a bitmap's
+texture) is derived again inside the scope in which ``mi.render`` runs the
+derivative; their gradients are then added to the parameters' in one step.
+
+Dr.Jit 1.5 sets the modes. Reverse-mode AD goes through symbolic loops only
+by replaying stored iterations, which on the LLVM backend mis-compiles a
+stored mask and fails on a state variable of width one and on nested loops:
+loops and branches are traced in evaluated mode. Forward mode evaluates
+calls too, as its traversal may not cross from a symbolic call's recording
+into the variables it read; reverse mode keeps them symbolic, as its
+evaluated form counts the derivative of a gather at one index (a texture's
+transform) once per lane.
+
+What is not differentiated: changes of visibility. A silhouette, the edge of
+a shadow, the edge of total internal reflection or of a texture's pattern
+that moves when a parameter changes moves a discontinuity, whose derivative
+is a Dirac delta that only edge sampling or reparameterisation captures (as
+in Mitsuba's ``prb`` without them). The parameters that move geometry (a
+shape's vertices or placement, the sensor) are refused with one sentence.
+
+Determinism: Dr.Jit traverses a graph in the order in which it was built,
+and the tiles are summed in order. What remains is the scatter-adds of the
+backward pass (every lane that reads a texel or a constant adds to its
+gradient): with several threads they land in a different order every run,
+so the backward pass of a tile runs on one thread, where they land in lane
+order. The same scene and adjoint give the same gradient bit for bit.
+"""
+
+from __future__ import annotations
+
+from contextlib import contextmanager
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+
+from ..camera import camera_rays
+from ..errors import ParameterError, VariantError
+from ..jit import concat, index_range
+from .tracer import RayBatch
+
+PLUGIN_NAME = "whitted"
+#: A shape's parameters whose change moves its surface.
+GEOMETRY = ("vertex_positions", "to_world", "center", "radius", "height")
+#: Camera samples traced at once, in units of ``wavefront_size``: tracing a
+#: tile again with AD costs a fixed time for each generation of its trees,
+#: so tiles are wider than a primal launch.
+TILE_FACTOR = 4
+#: Bytes of a tile's AD graph per camera sample, with some margin (about
+#: 900 on the report's scene).
+TILE_SAMPLE_BYTES = 1280
+_NOT_GEOMETRY = ("which whitted does not differentiate (silhouettes would move); "
+                 "differentiate materials, textures, lights or the ambient term")
+
+
+def require_differentiable_variant() -> None:
+    """One sentence where the active variant has no automatic
+    differentiation."""
+    if not dr.is_diff_v(mi.Float):
+        raise VariantError(
+            f"{PLUGIN_NAME}: gradients need a variant with automatic differentiation such as "
+            f"'llvm_ad_rgb' (the active variant is '{mi.variant()}').")
+
+
+def differentiated(params) -> list:
+    """The keys of ``params`` (``mi.SceneParameters``, or ``None``) whose
+    values have their gradients enabled, after refusing those whitted does
+    not differentiate: a shape's geometry or placement, and a sensor's."""
+    if params is None:
+        return []
+    found = []
+    for key in params.keys():
+        node = params.properties[key][2]
+        if not _grad_enabled(params[key]):
+            continue
+        name = key.rsplit(".", 1)[-1]
+        if isinstance(node, mi.Shape) and name in GEOMETRY:
+            raise ParameterError(PLUGIN_NAME, key, "moves a shape, " + _NOT_GEOMETRY)
+        if isinstance(node, mi.Sensor):
+            raise ParameterError(PLUGIN_NAME, key, "belongs to the sensor, " + _NOT_GEOMETRY)
+        found.append(key)
+    return found
+
+
+class StandIns:
+    """For the length of a ``with`` block, each differentiated parameter of
+    ``params`` is replaced in the scene by a fresh AD leaf of the same
+    value (its ``stand_in``), carrying the parameter's tangent, and the
+    plugins are updated; afterwards the parameters come back, each with the
+    gradient of its stand-in added to its own.
+
+    The derivatives are so taken on a graph of their own: values the
+    plugins derive from a parameter when it is updated (a bitmap's texture
+    from its data) are derived again from the stand-in, inside the
+    differentiation that ``mi.render`` runs in a scope of its own, which
+    Dr.Jit's forward mode cannot leave; and every gradient is complete,
+    and evaluated, when the block ends."""
+
+    def __init__(self, params, keys: list, tangents: bool):
+        self.view = params.copy() if keys else None
+        #: Forward mode: the parameters' gradients are tangents, and the
+        #: stand-ins' gradients are not added back.
+        self.tangents = tangents
+        #: The parameters as they were: copies that share their variables.
+        self.originals = {key: _alias(params[key]) for key in keys}
+        self.stand_ins = {}
+
+    def __enter__(self) -> "StandIns":
+        for key, original in self.originals.items():
+            # A copy (Mitsuba takes a value with the parameter's own
+            # variable for no change at all).
+            leaf = dr.copy(dr.detach(original))
+            dr.make_opaque(leaf)
+            dr.enable_grad(leaf)
+            self.stand_ins[key] = leaf
+        self._install(self.stand_ins)
+        return self
+
+    def tangents_of(self) -> list:
+        """``(stand-in, tangent)`` of each parameter, the tangent being the
+        parameter's gradient (forward mode)."""
+        return [(leaf, dr.detach(dr.grad(self.originals[key])))
+                for key, leaf in self.stand_ins.items()]
+
+    def __exit__(self, *error) -> None:
+        gradients = {key: dr.detach(dr.grad(leaf)) for key, leaf in self.stand_ins.items()}
+        self._install(self.originals)
+        if error[0] is None and not self.tangents:
+            for key, gradient in gradients.items():
+                dr.accum_grad(self.originals[key], gradient)
+
+    def leaves(self) -> list:
+        """The stand-ins."""
+        return list(self.stand_ins.values())
+
+    def _install(self, values: dict) -> None:
+        if self.view is None:
+            return
+        for key, value in values.items():
+            self.view[key] = value
+        self.view.update()
+
+
+def _alias(value):
+    """A new handle on the same variables as ``value`` (an array, a tensor
+    or a transform): assigning through one leaves the other as it was."""
+    return type(value)(value)
+
+
+def _grad_enabled(value) -> bool:
+    """Whether ``value`` (an array, a transform, or a plain number) has its
+    gradient enabled."""
+    try:
+        return dr.grad_enabled(value)
+    except TypeError:
+        return False
+
+
+@contextmanager
+def _evaluated(reverse: bool):
+    """Loops and branches traced in evaluated mode, and calls too for the
+    forward mode (see the module's docstring)."""
+    with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, False), \
+            dr.scoped_set_flag(dr.JitFlag.SymbolicConditionals, False), \
+            dr.scoped_set_flag(dr.JitFlag.SymbolicCalls, reverse):
+        yield
+
+
+@contextmanager
+def _one_thread():
+    """Kernels run on one thread: scatter-adds land in lane order.
+
+    Dr.Jit's LLVM backend gives a scatter-add onto a small array one copy of
+    it per thread, laid out for the thread count of the moment the
+    operation is recorded: whatever is recorded under one count must run
+    under it. Scatters are side effects, which ``dr.eval()`` runs (all of
+    them, those into gradients Dr.Jit keeps out of reach included), so the
+    block starts and ends with one; its caller evaluates what it reads."""
+    count = dr.thread_count()
+    _flush()
+    dr.set_thread_count(1)
+    try:
+        yield
+    finally:
+        _flush()
+        dr.set_thread_count(count)
+
+
+def _flush() -> None:
+    """Run every computation recorded so far, side effects included."""
+    dr.eval()
+    dr.sync_thread()
+
+
+@dataclass
+class _Launch:
+    """Camera samples a sampler asked for at once, and their radiance as an
+    AD leaf (its gradient: each sample's adjoint or tangent)."""
+    positions: mi.Point2f
+    keys: mi.UInt32
+    lens: object
+    radiance: mi.Color3f
+
+
+class Replay:
+    """The radiance of camera samples traced again with AD enabled, tile by
+    tile (see the module's docstring)."""
+
+    def __init__(self, tracer, sensor: mi.Sensor):
+        self.tracer = tracer
+        self.sensor = sensor
+        self.tile = tracer.camera_batch * TILE_FACTOR
+
+    def _radiance(self, positions, keys, lens, part, reverse: bool) -> mi.Color3f:
+        """Radiance of the samples ``part`` of ``positions``, to be
+        differentiated in reverse mode or (``reverse`` false) forward."""
+        with dr.suspend_grad():
+            ray, weight = camera_rays(self.sensor, dr.gather(mi.Point2f, positions, part),
+                                      None if lens is None else dr.gather(mi.Point2f, lens, part))
+            rays = RayBatch(ray.o, ray.d, mi.Color3f(weight), dr.gather(mi.UInt32, keys, part))
+        with dr.resume_grad(), _evaluated(reverse):
+            radiance, _ = self.tracer.trace(rays)
+        return radiance
+
+    def _parts(self, count: int):
+        for start in range(0, count, self.tile):
+            yield index_range(start, min(start + self.tile, count))
+
+    def tangent(self, positions, keys, lens, sources: list) -> mi.Color3f:
+        """The samples' radiance tangent, from ``sources``: pairs of a
+        stand-in of a parameter and its tangent. The traversal starts
+        there, within the graph of this derivative, and keeps its edges for
+        the next tile; the stand-ins hold their tangents only meanwhile,
+        since the frozen kernels take them as inputs, and a frozen call
+        records anew for each new kind of input."""
+        count = dr.width(keys)
+        tangent = dr.empty(mi.Color3f, count)
+        for part in self._parts(count):
+            radiance = self._radiance(positions, keys, lens, part, reverse=False)
+            with dr.resume_grad():
+                for leaf, value in sources:
+                    dr.set_grad(leaf, value)
+                dr.enqueue(dr.ADMode.Forward, *[leaf for leaf, _ in sources])
+                dr.traverse(dr.ADMode.Forward, flags=dr.ADFlag.ClearInterior)
+                dr.scatter(tangent, dr.detach(dr.grad(radiance)), part)
+                for leaf, _ in sources:
+                    dr.clear_grad(leaf)
+            dr.eval(tangent)
+        return tangent
+
+    def backward(self, positions, keys, lens, adjoint: mi.Color3f, parameters: list) -> None:
+        """Add to the gradients of ``parameters`` that of the samples'
+        radiance weighed by ``adjoint``."""
+        for part in self._parts(dr.width(keys)):
+            radiance = self._radiance(positions, keys, lens, part, reverse=True)
+            dr.eval(radiance)
+            with dr.resume_grad(), _one_thread():
+                dr.set_grad(radiance, dr.gather(mi.Color3f, adjoint, part))
+                dr.enqueue(dr.ADMode.Backward, radiance)
+                # Edges are kept: derived values the tiles share (a texture's
+                # transform) lead each tile's gradient on to the parameters.
+                dr.traverse(dr.ADMode.Backward, flags=dr.ADFlag.ClearVertices)
+                dr.eval([dr.grad(parameter) for parameter in parameters])
+            del radiance
+
+
+def recording_shader(base, tangent=None):
+    """A subclass of the camera shader ``base`` (``whitted.CameraShader``)
+    that keeps each launch (:class:`_Launch`) in ``launches`` and hands its
+    radiance out as an AD leaf, whose gradient is ``tangent(positions,
+    keys, lens)`` if given."""
+
+    class RecordingShader(base):
+        def __init__(self, tracer, sensor, progress=None):
+            super().__init__(tracer, sensor, progress)
+            self.launches = []
+
+        def __call__(self, positions, keys, lens=None):
+            radiance, alpha = super().__call__(positions, keys, lens)
+            leaf = mi.Color3f(radiance)
+            dr.enable_grad(leaf)
+            if tangent is not None:
+                dr.set_grad(leaf, tangent(positions, keys, lens))
+            self.launches.append(_Launch(positions, keys, lens, leaf))
+            return leaf, alpha
+
+    return RecordingShader
+
+
+def sample_adjoints(launches: list, radiance: mi.Color3f, adjoint: mi.Color3f):
+    """The camera samples of ``launches`` (positions, keys, lens points or
+    ``None``) and each one's adjoint, from the ``adjoint`` of the band's
+    pixel ``radiance`` that the sampler made of them."""
+    with dr.resume_grad():
+        dr.set_grad(radiance, adjoint)
+        dr.enqueue(dr.ADMode.Backward, radiance)
+        dr.traverse(dr.ADMode.Backward)
+        adjoints = [dr.detach(dr.grad(launch.radiance)) for launch in launches]
+    lens = None if launches[0].lens is None else concat([l.lens for l in launches])
+    samples = (concat([l.positions for l in launches]), concat([l.keys for l in launches]),
+               lens, concat(adjoints))
+    # Evaluated here, with the threads that recorded the scatter-adds of
+    # this traversal (see ``_one_thread``).
+    dr.eval(samples)
+    return samples
+
+
+def band_tangent(radiance: mi.Color3f) -> mi.Color3f:
+    """The tangent of a band's pixel ``radiance`` from those of its samples."""
+    with dr.resume_grad():
+        dr.forward_to(radiance)
+        return dr.detach(dr.grad(radiance))
