@@ -31,6 +31,7 @@ if interrupt.started_as("mitsuba_whitted.cli", "mitsuba-whitted"):
     interrupt.end_quietly_on_ctrl_c("mitsuba-whitted")
 
 from . import llvm  # noqa: E402  (after Ctrl-C is handled)
+from .errors import ParameterError  # noqa: E402,F401  (raised by every plugin's checks)
 
 __version__ = "0.1.0"
 
