@@ -61,3 +61,29 @@ def test_probe_survives_an_aborting_library():
     code = ("from mitsuba_whitted import llvm; import sys; "
             f"sys.exit(0 if llvm.probe({broken[0].path!r}) is False else 1)")
     assert subprocess.run([sys.executable, "-c", code], env=env, timeout=300).returncode == 0
+
+
+# Records DRJIT_LIBLLVM_PATH at the moment Dr.Jit is first imported.
+IMPORT_WATCH = """
+import os, sys
+class Watch:
+    def find_spec(self, name, path=None, target=None):
+        if name == "drjit" and "seen" not in globals():
+            globals()["seen"] = os.environ.get("DRJIT_LIBLLVM_PATH")
+        return None
+sys.meta_path.insert(0, Watch())
+import mitsuba_whitted
+print(repr(seen))
+print(repr(os.environ.get("DRJIT_LIBLLVM_PATH")))
+"""
+
+
+def test_the_library_is_chosen_before_drjit_is_imported():
+    """Dr.Jit maps a libLLVM when it is imported: the package must have
+    chosen one by then, or a broken default would load first."""
+    env = {k: v for k, v in os.environ.items() if k != "DRJIT_LIBLLVM_PATH"}
+    result = subprocess.run([sys.executable, "-c", IMPORT_WATCH], capture_output=True, text=True,
+                            env=env, timeout=120)
+    assert result.returncode == 0, result.stderr
+    at_import, chosen = result.stdout.splitlines()
+    assert chosen != "None" and at_import == chosen

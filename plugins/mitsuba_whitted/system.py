@@ -6,9 +6,6 @@ from __future__ import annotations
 import os
 import platform
 
-import drjit as dr
-import mitsuba as mi
-
 
 def proc_field(path: str, name: str) -> str | None:
     """The value of the ``name:`` line of a ``/proc`` file (``/proc/cpuinfo``,
@@ -28,6 +25,10 @@ def proc_field(path: str, name: str) -> str | None:
 def machine() -> str:
     """The processor, the system, the core count and the versions that
     timings depend on, in one line."""
+    # Imported here: files.py, which llvm.py needs, imports this module
+    # before the libLLVM is chosen, and Dr.Jit loads one when imported.
+    import drjit as dr
+    import mitsuba as mi
     return (f"{platform.machine()} ({_cpu_model()}), {platform.system()} {platform.release()}, "
             f"{_cpu_count()} CPU cores; Python {platform.python_version()}, "
             f"mitsuba {mi.__version__}, drjit {dr.__version__}, variant {mi.variant()}")
