@@ -19,13 +19,9 @@ from contextlib import contextmanager
 import mitsuba as mi
 
 from . import files
-from .errors import caused_by, one_sentence
+from .errors import UsageError, caused_by, one_sentence
 from .interrupt import InterruptGuard
 from .progress import Progress
-
-
-class UsageError(Exception):
-    """Bad input from the command line, reported as one sentence."""
 
 
 def _parse_defines(pairs: list[str]) -> dict:
@@ -36,8 +32,6 @@ def _parse_defines(pairs: list[str]) -> dict:
             raise UsageError(f"mitsuba-whitted: -D expects name=value (got '{pair}').")
         defines[name] = value
     return defines
-
-
 
 
 def _load_scene(path: str, defines: dict):

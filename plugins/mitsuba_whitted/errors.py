@@ -31,6 +31,10 @@ class VariantError(RuntimeError):
     """The active Mitsuba variant cannot run this plugin."""
 
 
+class UsageError(Exception):
+    """Bad input from the command line, reported as one sentence."""
+
+
 def caused_by(error: BaseException, kind: type) -> bool:
     """Whether an exception of type ``kind`` is ``error`` or in the chain of
     its causes and contexts (Dr.Jit wraps a ``KeyboardInterrupt`` raised
@@ -53,10 +57,8 @@ _POINTS_AT_CAUSE = re.compile(r"\(see above\)\.?$")
 _SOURCE_LOCATION = re.compile(r"\[[\w.]+\.(?:cpp|h|inl):\d+\] ")
 #: Dr.Jit's function names before its message: "drjit...__floordiv__(): jit_var_div(r0, r2): ".
 _DRJIT_CALLS = re.compile(r"^(?:(?:drjit\.[\w.]+|jit_\w+)\([^()]*\): )+")
-#: Exception classes whose name adds nothing to their message.
-_PLAIN_CLASSES = {"Exception", "RuntimeError", "ValueError", "OSError", "ParameterError",
-                  "VariantError", "LLVMError", "CompareError", "UsageError", "WriteError",
-                  "ImageWriteError", "ReadError"}
+#: Python's exception classes whose name adds nothing to their message.
+_GENERIC_CLASSES = {"Exception", "RuntimeError", "ValueError", "OSError"}
 #: Raised by this package's plugins with a sentence that names the plugin
 #: and what is wrong: Mitsuba's heading before it adds nothing.
 _OWN_SENTENCES = {"ParameterError", "VariantError", "LLVMError", "ValueError"}
@@ -107,7 +109,26 @@ def _plain_line(text: str, name: str) -> str:
     if _passes_size_limit(line):
         limit = "" if "2^32" in line else ": more than Dr.Jit's limit of 2^32 entries in one array"
         line = f"{line.rstrip('.!')}{limit}; lower the film's resolution or its samples per pixel"
-    return line if name in _PLAIN_CLASSES else f"{name}: {line}"
+    return line if _is_plain(name) else f"{name}: {line}"
+
+
+def _is_plain(name: str) -> bool:
+    """Whether a message of the exception class ``name`` is read without
+    the name: Python's generic classes, and this package's own, whose
+    messages are sentences already."""
+    return name in _GENERIC_CLASSES or name in _package_exception_classes()
+
+
+def _package_exception_classes() -> set[str]:
+    """Names of the loaded exception classes defined in this package."""
+    package = __name__.partition(".")[0]
+    names, pending = set(), [BaseException]
+    while pending:
+        for subclass in pending.pop().__subclasses__():
+            pending.append(subclass)
+            if subclass.__module__.partition(".")[0] == package:
+                names.add(subclass.__name__)
+    return names
 
 
 def _passes_size_limit(line: str) -> bool:

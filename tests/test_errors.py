@@ -1,0 +1,68 @@
+"""Every exception class of the package reaches a person as its own
+sentence, without the class's name before it."""
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from mitsuba_whitted.errors import one_sentence
+
+PACKAGE = Path(__file__).resolve().parent.parent / "plugins" / "mitsuba_whitted"
+
+
+def package_exception_classes() -> list[tuple[str, str]]:
+    """(module, class) of every class in the package's sources that derives,
+    directly or through another of them, from an exception class."""
+    bases, modules = {}, {}
+    for path in sorted(PACKAGE.rglob("*.py")):
+        module = ".".join(path.relative_to(PACKAGE.parent).with_suffix("").parts)
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ClassDef):
+                bases[node.name] = [ast.unparse(b).rsplit(".", 1)[-1] for b in node.bases]
+                modules[node.name] = module.removesuffix(".__init__")
+
+    def is_exception(name, seen=()):
+        if name in seen:
+            return False
+        return name.endswith(("Error", "Exception")) and name not in bases or any(
+            is_exception(base, seen + (name,)) for base in bases.get(name, ()))
+
+    return sorted((modules[name], name) for name in bases
+                  if any(is_exception(base) for base in bases[name]))
+
+
+CLASSES = package_exception_classes()
+
+
+def test_the_package_has_its_own_exception_classes():
+    """The oracle finds the classes it is meant to (it would pass vacuously
+    on an empty list)."""
+    names = {name for _, name in CLASSES}
+    assert {"ParameterError", "WriteError", "ImageWriteError", "ClusterError",
+            "UsageError"} <= names
+    assert "EqualError" not in names  # a record of figures, not an exception
+
+
+@pytest.mark.parametrize("module, name", CLASSES, ids=[name for _, name in CLASSES])
+def test_an_error_of_the_package_is_its_own_sentence(module, name):
+    """In this process, and in a command run as ``python -m``, where the
+    command's own module is ``__main__``."""
+    cls = getattr(__import__(module, fromlist=[name]), name)
+    error = cls.__new__(cls)
+    Exception.__init__(error, "mitsuba-whitted: the file 'a' is missing.")
+    assert one_sentence(error) == "mitsuba-whitted: the file 'a' is missing."
+
+
+def test_a_usage_error_of_a_command_run_as_a_module_is_its_own_sentence(tmp_path):
+    result = subprocess.run([sys.executable, "-m", "mitsuba_whitted.cli", "render", "x.xml",
+                             "-o", "x.png", "-D", "novalue"], capture_output=True, text=True,
+                            cwd=tmp_path, timeout=300)
+    assert result.returncode == 2
+    assert result.stderr == "mitsuba-whitted: -D expects name=value (got 'novalue').\n"
+
+
+def test_other_classes_keep_their_name():
+    assert one_sentence(KeyError("a")) == "KeyError: 'a'."
