@@ -5,22 +5,23 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ..files import check_readable
 from .backends import InProcess, run_job
 from .scene import SceneSource
 from .task import Task
 
 
 class BatchError(ValueError):
-    """Scenes that cannot make a batch, said in one sentence."""
+    """Two scenes of a batch would write the same image."""
 
 
 def output_paths(scenes: list[Path], out_dir: Path, suffix: str) -> list[Path]:
-    """``out_dir/<scene file's stem><suffix>`` for each scene; two scenes
-    that would write the same image are refused."""
+    """``out_dir/<scene file's stem><suffix>`` for each scene; a scene that
+    is not a readable file, and two scenes that would write the same image,
+    are refused."""
     outputs, seen = [], {}
     for scene in scenes:
-        if not scene.is_file():
-            raise BatchError(f"mitsuba-whitted: scene file '{scene}' does not exist.")
+        check_readable(scene)
         output = out_dir / f"{scene.stem}{suffix}"
         if output in seen:
             raise BatchError(f"mitsuba-whitted: '{seen[output]}' and '{scene}' would both be "
