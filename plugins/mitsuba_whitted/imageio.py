@@ -51,8 +51,12 @@ def _known_format(path: str | Path) -> Path:
 def write_image(path: str | Path, image: np.ndarray) -> None:
     """Write an (height, width, channels) linear image to ``path``, whole
     or not at all."""
-    path = Path(path)
-    write_pixels(path, stored_pixels(path, image))
+    path = _known_format(path)
+    pixels = stored_pixels(path, image)
+    height, width, channels = pixels.shape
+    with _Encoder(path, width, height, channels) as encoder:
+        encoder.check(encoder.out.write_image(pixels), "write_image")
+        encoder.save()
 
 
 def stored_pixels(path: Path, image: np.ndarray) -> np.ndarray:
@@ -81,15 +85,12 @@ def write_rows(path: str | Path, width: int, height: int, channels: int, render)
     channels), top to bottom. Each band is encoded as it arrives, so the
     whole image is never in memory as floats; the file is written whole or
     not at all, as by :func:`write_image`."""
-    import OpenImageIO as oiio
-
     path = _known_format(path)
-    kind = oiio.FLOAT if path.suffix.lower() in HDR_SUFFIXES else oiio.UINT8
     encoders = []  # made with the first band: a render refused before it meets no encoder
 
     def put(first_row: int, rows: np.ndarray) -> None:
         if not encoders:
-            encoders.append(_Encoder(path, oiio.ImageSpec(width, height, channels, kind)))
+            encoders.append(_Encoder(path, width, height, channels))
         encoders[0].check(encoders[0].out.write_scanlines(
             first_row, first_row + len(rows), 0, stored_pixels(path, rows)), "write_scanlines")
 
@@ -97,31 +98,10 @@ def write_rows(path: str | Path, width: int, height: int, channels: int, render)
         render(put)
         if not encoders:
             raise cannot_write(path, "the render gave no rows")
-        with encoders[0].finished() as encoded:
-            write_atomically(path, lambda file: shutil.copyfileobj(encoded, file, 1 << 24))
+        encoders[0].save()
     finally:
         for encoder in encoders:
             encoder.__exit__()
-
-
-def write_pixels(path: str | Path, pixels: np.ndarray) -> None:
-    """Write (height, width, channels) pixels as they are (uint8 or
-    float32) to ``path``, whole or not at all."""
-    path = _known_format(path)
-    data = encode(path, pixels)
-    write_atomically(path, lambda file: file.write(data))
-
-
-def encode(path: Path, pixels: np.ndarray) -> bytes:
-    """The bytes of ``pixels`` in the format of ``path``'s suffix."""
-    import OpenImageIO as oiio
-
-    height, width, channels = pixels.shape
-    kind = oiio.UINT8 if pixels.dtype == np.uint8 else oiio.FLOAT
-    with _Encoder(path, oiio.ImageSpec(width, height, channels, kind)) as encoder:
-        encoder.check(encoder.out.write_image(pixels), "write_image")
-        with encoder.finished() as encoded:
-            return encoded.read()
 
 
 class _Encoder:
@@ -133,7 +113,7 @@ class _Encoder:
     on one. The disk then sees only plain writes, whose errors Python
     raises."""
 
-    def __init__(self, path: Path, spec):
+    def __init__(self, path: Path, width: int, height: int, channels: int):
         import OpenImageIO as oiio
 
         self.oiio, self.path = oiio, path
@@ -141,8 +121,11 @@ class _Encoder:
         if self.out is None:
             raise cannot_write(path, f"OpenImageIO has no writer for it "
                                      f"({_oiio_reason(None, oiio)})")
+        # The pixels' type as stored_pixels makes them for this format.
+        kind = oiio.UINT8 if path.suffix.lower() in LDR_SUFFIXES else oiio.FLOAT
         self.memory = os.memfd_create("mitsuba-whitted-image")
-        self.check(self.out.open(f"/proc/self/fd/{self.memory}", spec), "open")
+        self.check(self.out.open(f"/proc/self/fd/{self.memory}",
+                                 oiio.ImageSpec(width, height, channels, kind)), "open")
 
     def __enter__(self) -> "_Encoder":
         return self
@@ -161,10 +144,12 @@ class _Encoder:
         raise cannot_write(self.path, f"OpenImageIO's {step} failed while encoding it "
                                       f"({reason_text})")
 
-    def finished(self):
-        """Close the writer and check it; the encoded file, from its start."""
+    def save(self) -> None:
+        """Close the writer, check it, and copy the encoded file to the
+        path, whole or not at all."""
         self.check(self.out.close(), "close")
-        return open(self.memory, "rb", closefd=False)
+        with open(self.memory, "rb", closefd=False) as encoded:
+            write_atomically(self.path, lambda file: shutil.copyfileobj(encoded, file, 1 << 24))
 
 
 def _oiio_reason(out, oiio) -> str:
