@@ -20,7 +20,7 @@ import mitsuba as mi
 
 from . import files
 from .errors import UsageError, caused_by, one_sentence
-from .interrupt import InterruptGuard
+from .interrupt import InterruptGuard, interrupted_line
 from .progress import Progress
 
 
@@ -259,7 +259,7 @@ def run_command(function, *args, program: str = "mitsuba-whitted") -> int:
     exit code 130 (see :mod:`.interrupt`), no partial file either way."""
     def last_words():
         files.discard_pending()
-        sys.stderr.write(f"{erase_line(sys.stderr)}{program}: interrupted.\n")
+        sys.stderr.write(erase_line(sys.stderr) + interrupted_line(program))
 
     with InterruptGuard(last_words) as guard, plain_warnings():
         try:

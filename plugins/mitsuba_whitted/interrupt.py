@@ -89,14 +89,18 @@ def started_as(module: str, script: str) -> bool:
             or (module in argv and argv[argv.index(module) - 1] == "-m"))
 
 
+def interrupted_line(program: str) -> str:
+    """What a command says, and all it says, when Ctrl-C ends it."""
+    return f"{program}: interrupted.\n"
+
+
 def end_quietly_on_ctrl_c(program: str) -> None:
     """Until a command's :class:`InterruptGuard` takes over, Ctrl-C ends the
     process at once with one line: nothing is written yet, and a
     ``KeyboardInterrupt`` raised while Python imports Dr.Jit and Mitsuba
     ends in a traceback (or in a half-imported module's ``NameError``)."""
     def end(signum, frame):
-        os.write(2, f"{program}: interrupted.\n".encode())
+        os.write(2, interrupted_line(program).encode())
         os._exit(EXIT_CODE)
 
     signal.signal(signal.SIGINT, end)
-
