@@ -553,11 +553,11 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         if self.aa == "adaptive":
             sampler = antialias.AdaptiveSampler(self.aa_threshold, self.aa_max_depth, budget,
                                                 _warn, lens)
-            return sampler.render(band, shade, 4 * band.width * band.height + refined_before)
+            return sampler.render(band, shade, refined_before)
         if self.aa == "contrast":
             sampler = antialias.ContrastSampler(self.aa_threshold, self.aa_samples, budget,
                                                 _warn, lens)
-            return sampler.render(band, shade, band.width * band.height + refined_before)
+            return sampler.render(band, shade, refined_before)
         n = self.aa_samples if self.aa == "grid" else 1
         return antialias.render_grid(band, n, shade, lens)
 
