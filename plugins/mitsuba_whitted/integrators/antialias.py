@@ -35,7 +35,7 @@ from typing import Callable
 import drjit as dr
 import mitsuba as mi
 
-from ..jit import full_width, index_range, opaque_float, read_runs, sum_blocks
+from ..jit import full_width, in_launches, index_range, opaque_float, read_runs, sum_blocks
 from ..mathutil import hammersley
 from . import lens as lens_points
 
@@ -168,15 +168,9 @@ def render_grid(band: Band, n: int, shade: ShadeFn, lens: bool = False):
     per_pixel = n * n
     launch = max(1, getattr(shade, "batch", band.pixels * per_pixel) // per_pixel)
     count = SampleCount(band.pixels * per_pixel, 0, (band.pixels * per_pixel,))
-    if band.pixels <= launch:
-        return _grid_means(band, 0, band.pixels, n, shade, lens) + (count,)
-    radiance, alpha = dr.empty(mi.Color3f, band.pixels), dr.empty(mi.Float, band.pixels)
-    for start in range(0, band.pixels, launch):
-        stop = min(start + launch, band.pixels)
-        part_radiance, part_alpha = _grid_means(band, start, stop - start, n, shade, lens)
-        target = index_range(start, stop)
-        dr.scatter(radiance, part_radiance, target)
-        dr.scatter(alpha, part_alpha, target)
+    radiance, alpha = in_launches(
+        band.pixels, launch,
+        lambda start, stop, _: _grid_means(band, start, stop - start, n, shade, lens))
     return radiance, alpha, count
 
 

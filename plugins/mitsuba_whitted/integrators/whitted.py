@@ -6,7 +6,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..jit import index_range
+from ..jit import in_launches
 from ..errors import ParameterError, VariantError, check, check_choice
 from ..parameters import LastValid, checked_numbers, describe
 from . import antialias, gradients, render_plan
@@ -654,22 +654,19 @@ class CameraShader:
 
     def _trace(self, positions: mi.Point2f, keys: mi.UInt32, lens: mi.Point2f = None):
         total = dr.width(positions)
-        if total <= self.batch:
-            # The whole batch in one launch (every adaptive level after the
-            # first): no copies in and out.
-            radiance, alpha = self.tracer.trace_camera(self.sensor, positions, keys, lens)
-        else:
-            radiance, alpha = dr.empty(mi.Color3f, total), dr.empty(mi.Float, total)
-            for start in range(0, total, self.batch):
-                stop = min(start + self.batch, total)
-                part = index_range(start, stop)
-                part_radiance, part_alpha = self.tracer.trace_camera(
-                    self.sensor, dr.gather(mi.Point2f, positions, part),
-                    dr.gather(mi.UInt32, keys, part),
-                    None if lens is None else dr.gather(mi.Point2f, lens, part))
-                dr.scatter(radiance, part_radiance, part)
-                dr.scatter(alpha, part_alpha, part)
-                self._report(stop, total)
+
+        def trace(start, stop, part):
+            if part is None:
+                # The whole batch in one launch (every adaptive level after
+                # the first): no copies in and out.
+                return self.tracer.trace_camera(self.sensor, positions, keys, lens)
+            return self.tracer.trace_camera(
+                self.sensor, dr.gather(mi.Point2f, positions, part),
+                dr.gather(mi.UInt32, keys, part),
+                None if lens is None else dr.gather(mi.Point2f, lens, part))
+
+        radiance, alpha = in_launches(total, self.batch, trace,
+                                      lambda stop: self._report(stop, total))
         dr.eval(radiance, alpha)
         # Wait here, where Dr.Jit lets other Python threads run: the
         # samplers' next dr.compress would wait for these launches holding
