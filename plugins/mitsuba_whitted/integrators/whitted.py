@@ -6,7 +6,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..jit import in_launches
+from ..jit import in_launches, to_int
 from ..errors import ParameterError, VariantError, check, check_choice
 from ..parameters import LastValid, checked_numbers, describe
 from . import antialias, gradients, render_plan
@@ -729,7 +729,7 @@ class _LastRender:
 def seed_value(seed) -> int:
     """A render seed as a Python number: ``mi.render`` passes what its
     caller gave, an int or an ``mi.UInt32`` (always one for gradients)."""
-    value = int(seed[0]) if dr.is_array_v(seed) else int(seed)
+    value = to_int(seed)
     check(0 <= value < 1 << 32, PLUGIN_NAME, "seed",
           f"must be a whole number from 0 to 2^32 - 1 (got {value})")
     return value
@@ -791,13 +791,13 @@ def _require_finite(radiance: mi.Color3f, alpha: mi.Float) -> None:
     """Stop before a NaN or infinite pixel reaches the image. The scene's
     emitters and placements are checked beforehand; what passes those and
     still overflows (a radiance beyond float32's range) is named here."""
-    bad = dr.count(~(dr.isfinite(radiance.x) & dr.isfinite(radiance.y)
-                     & dr.isfinite(radiance.z) & dr.isfinite(alpha)))
-    if bad[0] if dr.is_array_v(bad) else bad:
+    bad = to_int(dr.count(~(dr.isfinite(radiance.x) & dr.isfinite(radiance.y)
+                            & dr.isfinite(radiance.z) & dr.isfinite(alpha))))
+    if bad:
         raise ParameterError(
             PLUGIN_NAME, "scene",
-            f"gives {int(bad[0] if dr.is_array_v(bad) else bad)} pixel(s) a NaN or infinite "
-            "value: a radiance, intensity or reflectance in it is too large for float32")
+            f"gives {bad} pixel(s) a NaN or infinite value: a radiance, intensity or "
+            "reflectance in it is too large for float32")
 
 
 def _require_supported_variant():
