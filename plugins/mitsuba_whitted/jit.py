@@ -42,6 +42,14 @@ def in_launches(total: int, launch: int, run, done=None) -> tuple:
     return radiance, alpha
 
 
+def unit_pair(value: "mi.UInt32", salt, rounds: int = 4) -> tuple:
+    """Two floats in [0, 1) from a TEA hash, of ``rounds`` rounds, of
+    ``value`` and ``salt`` (an ``mi.UInt32`` or a number)."""
+    a, b = mi.sample_tea_32(value, mi.UInt32(salt), rounds)
+    scale = 2.0 ** -32
+    return mi.Float(a) * scale, mi.Float(b) * scale
+
+
 def opaque_float(value: float) -> "mi.Float":
     return dr.opaque(mi.Float, value)
 
