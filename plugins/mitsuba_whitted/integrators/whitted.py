@@ -383,13 +383,11 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         self._note_sample_count(spp)
         film = sensor.film()
         channels = _film_channels(film)
-        width, height = film.crop_size()
-        film_entries = width * height * (2 * channels - 1 if develop else channels)
 
         def take(band, radiance, alpha):
             film.put_block(_image_block(film, band, radiance, alpha, channels))
 
-        self.render_bands(scene, sensor, seed, take, film_entries,
+        self.render_bands(scene, sensor, seed, take, _film_entries(film, channels, develop),
                           prepare=lambda: film.prepare([]))
         return film.develop() if develop else mi.TensorXf()
 
@@ -401,7 +399,6 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         sensor, seed, replay, keys = self._gradient_setup(scene, params, sensor, seed, spp)
         film = sensor.film()
         channels = _film_channels(film)
-        width, height = film.crop_size()
 
         def take(band, radiance, alpha):
             tangent = gradients.band_tangent(radiance)
@@ -415,7 +412,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
             def tangent(positions, sample_keys, lens):
                 return replay.tangent(positions, sample_keys, lens, tangents)
 
-            self.render_bands(scene, sensor, seed, take, width * height * (2 * channels - 1),
+            self.render_bands(scene, sensor, seed, take, _film_entries(film, channels),
                               prepare=lambda: film.prepare([]),
                               shader=gradients.recording_shader(CameraShader, tangent))
         return film.develop()
@@ -498,7 +495,8 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         allocated; ``shader(tracer, sensor, progress)`` makes what traces the
         camera samples (a :class:`CameraShader` if not given)."""
         check_emitters(scene)
-        if self.aa == "none" and _has_aperture(sensor):
+        aperture = _has_aperture(sensor)
+        if self.aa == "none" and aperture:
             self._note_once("pinhole", "whitted: aa='none' traces each pixel from the centre "
                             "of the thin lens's aperture, so the image has no depth of field; "
                             "use 'grid', 'adaptive' or 'contrast'.")
@@ -509,11 +507,12 @@ class WhittedIntegrator(mi.SamplingIntegrator):
             prepare()
         tracer.captured = [] if self.capture_rays else None
         total = antialias.SampleCount()
+        lens = self.aa != "none" and aperture
         with tracer.scene_ref.holding(scene):
             shade = (shader or CameraShader)(tracer, sensor, self.progress)
             for index, band in enumerate(plan.bands()):
                 shade.label = _band_label(index, plan.band_count)
-                radiance, alpha, count = self._sample_pixels(band, shade, total.refined)
+                radiance, alpha, count = self._sample_pixels(band, shade, total.refined, lens)
                 _require_finite(radiance, alpha)
                 take(band, radiance, alpha)
                 total.add(count)
@@ -545,11 +544,11 @@ class WhittedIntegrator(mi.SamplingIntegrator):
                   f"camera sample stops at {MAX_TREE_RAYS} rays; lower 'max_depth' or raise "
                   "'min_throughput'.")
 
-    def _sample_pixels(self, band, shade, refined_before: int):
+    def _sample_pixels(self, band, shade, refined_before: int, lens: bool):
         """Radiance, alpha and sample count of ``band``; its refinement
-        samples' keys follow the ``refined_before`` of the bands above."""
+        samples' keys follow the ``refined_before`` of the bands above.
+        ``lens``: whether the samples take points of the sensor's aperture."""
         budget = antialias.SampleBudget(self.aa_budget, render_plan.BAND_SAMPLES)
-        lens = self.aa != "none" and _has_aperture(shade.sensor)
         if self.aa == "adaptive":
             sampler = antialias.AdaptiveSampler(self.aa_threshold, self.aa_max_depth, budget,
                                                 _warn, lens)
@@ -823,6 +822,14 @@ def _film_channels(film: mi.Film) -> int:
         raise ParameterError(PLUGIN_NAME, "film",
                              f"must be an RGB(A) film such as 'hdrfilm' (got {film.class_name()})")
     return channels
+
+
+def _film_entries(film: mi.Film, channels: int, develop: bool = True) -> int:
+    """The floats a film of ``channels`` values per pixel holds during a
+    render: its storage, and where it is developed the developed image
+    (one value fewer per pixel: no weight)."""
+    width, height = film.crop_size()
+    return width * height * (2 * channels - 1 if develop else channels)
 
 
 def _settle_sampler(sensor: mi.Sensor) -> None:
