@@ -275,6 +275,54 @@ def test_forward_mode_agrees_with_backward_mode():
             gradient[component], rel=1e-5)
 
 
+def forward_image(description, key, component) -> np.ndarray:
+    """The tangent image along one entry of ``key``."""
+    loaded = mi.load_dict(description)
+    params = mi.traverse(loaded)
+    dr.enable_grad(params[key])
+    params.update()
+    dr.set_grad(params[key], _replaced(dr.zeros(type(params[key]), dr.shape(params[key])),
+                                       component, 1.0))
+    image = mi.render(loaded, params)
+    dr.forward_to(image)
+    return np.array(dr.grad(image))
+
+
+def test_forward_mode_holds_no_more_than_one_band_of_launches(monkeypatch):
+    """render_forward, like render, lets a band's camera samples go before
+    the next band: the shader that records them holds no more launches
+    than the band being rendered has made, and the tangent image is that
+    of a render in one band, bit for bit."""
+    from mitsuba_whitted.integrators import render_plan
+
+    described = gallery(size=16, aa="grid")
+    key, component = "lens.bsdf.specular_transmittance.value", 1
+    whole = forward_image(described, key, component)
+    held = []
+    recording_shader = gradients.recording_shader
+
+    def counting_shader(base, tangent=None):
+        class CountingShader(recording_shader(base, tangent)):
+            def __call__(self, *args):
+                result = super().__call__(*args)
+                held.append((self.label, len(self.launches)))
+                return result
+
+        return CountingShader
+
+    monkeypatch.setattr(gradients, "recording_shader", counting_shader)
+    # Four rows of 16 pixels per band, one sample each (aa 'grid' reduces
+    # its samples launch by launch): four bands.
+    monkeypatch.setattr(render_plan, "BAND_SAMPLES", 4 * 16)
+    banded = forward_image(described, key, component)
+    labels = [label for label, _ in held]
+    assert len(set(labels)) == 4
+    for index, (label, launches) in enumerate(held):
+        assert launches <= labels[:index + 1].count(label)
+    assert np.abs(whole).max() > 0
+    np.testing.assert_array_equal(banded, whole)
+
+
 DETERMINISM_KEYS = ["ball.bsdf.diffuse_reflectance.texture.data",
                     "ball.bsdf.specular_reflectance.value", "key.intensity.value"]
 

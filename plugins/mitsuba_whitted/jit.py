@@ -20,6 +20,36 @@ def index_range(start: int, stop: int) -> "mi.UInt32":
     return dr.arange(mi.UInt32, stop - start) + dr.opaque(mi.UInt32, start)
 
 
+def in_launches(total: int, launch: int, run, done=None) -> tuple:
+    """Radiance (``mi.Color3f``) and alpha (``mi.Float``) of ``total``
+    items, at most ``launch`` at a time: ``run(start, stop, part)`` gives
+    those of items ``start`` to ``stop - 1``, ``part`` being their indices
+    (``index_range(start, stop)``), or ``None`` where all the items fit in
+    one launch, which then needs no copies in and out. Launch by launch,
+    the parts are scattered into arrays of the whole, and ``done(stop)``
+    is called after each."""
+    if total <= launch:
+        return run(0, total, None)
+    radiance, alpha = dr.empty(mi.Color3f, total), dr.empty(mi.Float, total)
+    for start in range(0, total, launch):
+        stop = min(start + launch, total)
+        part = index_range(start, stop)
+        part_radiance, part_alpha = run(start, stop, part)
+        dr.scatter(radiance, part_radiance, part)
+        dr.scatter(alpha, part_alpha, part)
+        if done is not None:
+            done(stop)
+    return radiance, alpha
+
+
+def unit_pair(value: "mi.UInt32", salt, rounds: int = 4) -> tuple:
+    """Two floats in [0, 1) from a TEA hash, of ``rounds`` rounds, of
+    ``value`` and ``salt`` (an ``mi.UInt32`` or a number)."""
+    a, b = mi.sample_tea_32(value, mi.UInt32(salt), rounds)
+    scale = 2.0 ** -32
+    return mi.Float(a) * scale, mi.Float(b) * scale
+
+
 def opaque_float(value: float) -> "mi.Float":
     return dr.opaque(mi.Float, value)
 

@@ -35,7 +35,7 @@ from typing import Callable
 import drjit as dr
 import mitsuba as mi
 
-from ..jit import full_width, index_range, opaque_float, read_runs, sum_blocks
+from ..jit import full_width, in_launches, index_range, opaque_float, read_runs, sum_blocks
 from ..mathutil import hammersley
 from . import lens as lens_points
 
@@ -168,15 +168,9 @@ def render_grid(band: Band, n: int, shade: ShadeFn, lens: bool = False):
     per_pixel = n * n
     launch = max(1, getattr(shade, "batch", band.pixels * per_pixel) // per_pixel)
     count = SampleCount(band.pixels * per_pixel, 0, (band.pixels * per_pixel,))
-    if band.pixels <= launch:
-        return _grid_means(band, 0, band.pixels, n, shade, lens) + (count,)
-    radiance, alpha = dr.empty(mi.Color3f, band.pixels), dr.empty(mi.Float, band.pixels)
-    for start in range(0, band.pixels, launch):
-        stop = min(start + launch, band.pixels)
-        part_radiance, part_alpha = _grid_means(band, start, stop - start, n, shade, lens)
-        target = index_range(start, stop)
-        dr.scatter(radiance, part_radiance, target)
-        dr.scatter(alpha, part_alpha, target)
+    radiance, alpha = in_launches(
+        band.pixels, launch,
+        lambda start, stop, _: _grid_means(band, start, stop - start, n, shade, lens))
     return radiance, alpha, count
 
 
@@ -274,12 +268,12 @@ class AdaptiveSampler:
         #: a 2 x 2 grid), and a sample looks from a point of its quarter.
         self.lens = lens
 
-    def render(self, band: Band, shade: ShadeFn, first_refined_key: int | None = None):
+    def render(self, band: Band, shade: ShadeFn, refined_before: int = 0):
         """Pixels of ``band``. Its first level's keys are four per pixel of
-        the crop window; deeper levels' keys start at ``first_refined_key``
-        (default: after the first level of the whole crop window)."""
-        if first_refined_key is None:
-            first_refined_key = 4 * band.width * band.height
+        the crop window; deeper levels' keys follow the first level of the
+        whole crop window and the ``refined_before`` samples the bands
+        above refined."""
+        first_refined_key = 4 * band.width * band.height + refined_before
         centres, _, _ = _grid_positions(band.width, band.first_pixel, band.pixels, 1)
         origins = mi.Point2f(centres - 0.5)
         lens_origins = dr.zeros(mi.Point2f, band.pixels) if self.lens else None
@@ -386,14 +380,13 @@ class ContrastSampler:
         #: its refinement's points from their next Halton coordinates.
         self.lens = lens
 
-    def render(self, band: Band, shade: ShadeFn, first_refined_key: int | None = None):
+    def render(self, band: Band, shade: ShadeFn, refined_before: int = 0):
         """Pixels of ``band``. Centre samples are keyed by their pixel in the
-        crop window; refinement keys start at ``first_refined_key``
-        (default: after the centres of the whole crop window). The centres
-        of the rows next to the band are traced too, as its edge pixels'
-        neighbours."""
-        if first_refined_key is None:
-            first_refined_key = band.width * band.height
+        crop window; refinement keys follow the centres of the whole crop
+        window and the ``refined_before`` samples the bands above refined.
+        The centres of the rows next to the band are traced too, as its
+        edge pixels' neighbours."""
+        first_refined_key = band.width * band.height + refined_before
         radiance, alpha, contrast = self._centres(band, shade, self.lens)
         count = SampleCount(band.pixels, 0, (band.pixels,),
                             per_pixel=dr.full(mi.UInt32, 1, band.pixels))

@@ -294,9 +294,12 @@ class Replay:
 
 def recording_shader(base, tangent=None):
     """A subclass of the camera shader ``base`` (``whitted.CameraShader``)
-    that keeps each launch (:class:`_Launch`) in ``launches`` and hands its
-    radiance out as an AD leaf, whose gradient is ``tangent(positions,
-    keys, lens)`` if given."""
+    that hands each launch's radiance out as an AD leaf. Given a
+    ``tangent``, the leaf's gradient is ``tangent(positions, keys, lens)``
+    and nothing else is kept: the band's pixels, made of the leaves, keep
+    them in their AD graph until the band's tangent is taken. Without one
+    (reverse mode), each launch (:class:`_Launch`) is kept in ``launches``
+    until the caller has the band's adjoints and empties it."""
 
     class RecordingShader(base):
         def __init__(self, tracer, sensor, progress=None):
@@ -309,7 +312,8 @@ def recording_shader(base, tangent=None):
             dr.enable_grad(leaf)
             if tangent is not None:
                 dr.set_grad(leaf, tangent(positions, keys, lens))
-            self.launches.append(_Launch(positions, keys, lens, leaf))
+            else:
+                self.launches.append(_Launch(positions, keys, lens, leaf))
             return leaf, alpha
 
     return RecordingShader

@@ -32,6 +32,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
+from ..jit import unit_pair
 from ..mathutil import radical_inverse
 
 #: Salts of the hashes that seed the permutations.
@@ -129,9 +130,7 @@ def jitter(seed: mi.UInt32, index: mi.UInt32) -> mi.Vector2f:
     """A point of [0, 1)^2 hashed from ``seed`` and ``index``: where in its
     stratum a lens point lies. Spread so, rather than at the centres, the
     points of every pixel are an unbiased sample of its aperture."""
-    a, b = mi.sample_tea_32(seed, index, 16)
-    scale = 2.0 ** -32
-    return mi.Vector2f(mi.Float(a) * scale, mi.Float(b) * scale)
+    return mi.Vector2f(*unit_pair(seed, index, rounds=16))
 
 
 def halton_lens(sub: mi.UInt32, count: int, seed: mi.UInt32) -> mi.Point2f:

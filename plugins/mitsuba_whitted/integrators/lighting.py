@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
+from ..jit import unit_pair
 from .bsdf_query import has_delta_lobe
 from .offsets import spawn_ray_to
 from .scene_needs import SceneNeeds
@@ -40,13 +41,6 @@ class LightingSettings:
     ambient: mi.ScalarColor3f
     emitter_samples: int
     seed: int
-
-
-def _unit_pair(key: mi.UInt32, salt: int):
-    """Two uniform floats in [0, 1) from a hash of ``key`` and ``salt``."""
-    a, b = mi.sample_tea_32(key, mi.UInt32(salt))
-    scale = 2.0 ** -32
-    return mi.Float(a) * scale, mi.Float(b) * scale
 
 
 class ShadowTester(ReadsScene):
@@ -249,7 +243,7 @@ class DirectLighting:
         ``needs.sampled_lights``: ``point(s)`` for the s-th of them."""
         # Modulo 2^32: any seed of mi.render is a valid one (a seed the
         # size of a hash, as gradients may receive, overflowed).
-        rotation = _unit_pair(key, (self.settings.seed * 7919 + index) % (1 << 32))
+        rotation = unit_pair(key, (self.settings.seed * 7919 + index) % (1 << 32))
 
         def point(sample) -> mi.Point2f:
             step = mi.Float(sample)

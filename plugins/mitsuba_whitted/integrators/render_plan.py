@@ -28,6 +28,8 @@ from ..errors import ParameterError
 from ..system import available_memory
 from .antialias import Band
 
+PLUGIN_NAME = "whitted"
+
 #: Most camera samples a band may keep outside the kernels at once.
 BAND_SAMPLES = 1 << 25
 #: Camera samples per pixel that bands are sized for, where a pixel may
@@ -80,17 +82,16 @@ class RenderPlan:
 class Demand:
     """What a render asks for: ``samples_per_pixel`` is the most camera
     samples a pixel may keep outside the kernels at once (1 where they are
-    reduced launch by launch), ``launch_samples`` the most camera samples or
-    rays one launch traces, ``film_entries`` the floats of a film that holds
-    the whole image (0 when the image goes to a file band by band)."""
+    reduced launch by launch; the integrator's ``aa_budget`` bounds it),
+    ``launch_samples`` the most camera samples or rays one launch traces,
+    ``film_entries`` the floats of a film that holds the whole image (0
+    when the image goes to a file band by band)."""
     width: int
     height: int
     samples_per_pixel: float
     launch_samples: int
     film_entries: int
-    #: The integrator's parameters that bound ``samples_per_pixel`` and
-    #: ``launch_samples``.
-    samples_parameter: str = "aa_budget"
+    #: The integrator's parameter that bounds ``launch_samples``.
     launch_parameter: str = "wavefront_size"
     #: What the caller keeps as the bands arrive instead of a film (a file
     #: being encoded in memory), in bytes.
@@ -100,12 +101,12 @@ class Demand:
     launch_sample_bytes: int = LAUNCH_SAMPLE_BYTES
 
 
-def plan_render(demand: Demand, plugin: str = "whitted") -> RenderPlan:
+def plan_render(demand: Demand) -> RenderPlan:
     """The bands and peak memory of a render, or a :class:`ParameterError`
     naming what to lower where it cannot fit in this machine's memory or in
     Dr.Jit's arrays."""
-    _check_entries(demand.film_entries, "film", demand, plugin)
-    _check_entries(3 * demand.launch_samples, demand.launch_parameter, demand, plugin)
+    _check_entries(demand.film_entries, "film", demand)
+    _check_entries(3 * demand.launch_samples, demand.launch_parameter, demand)
     sized_for = min(demand.samples_per_pixel, TYPICAL_SAMPLES) * demand.width
     rows = int(max(1, min(demand.height, BAND_SAMPLES // max(sized_for, 1))))
     kept = min(rows * demand.width * demand.samples_per_pixel, BAND_SAMPLES)
@@ -114,26 +115,26 @@ def plan_render(demand: Demand, plugin: str = "whitted") -> RenderPlan:
         film_bytes=4 * demand.film_entries + demand.held_bytes,
         band_bytes=int(kept * SAMPLE_BYTES + rows * demand.width * PIXEL_BYTES),
         launch_bytes=demand.launch_samples * demand.launch_sample_bytes)
-    _check_fits(plan, demand, available_memory(), plugin)
+    _check_fits(plan, demand, available_memory())
     return plan
 
 
-def _check_entries(entries: int, parameter: str, demand: Demand, plugin: str) -> None:
+def _check_entries(entries: int, parameter: str, demand: Demand) -> None:
     """Refuse an array past Dr.Jit's 2^32 entries, naming what sets its size."""
     if entries < JIT_ENTRIES:
         return
     if parameter == "film":
         raise ParameterError(
-            plugin, "film",
+            PLUGIN_NAME, "film",
             f"of {demand.width} x {demand.height} pixels holds {entries:,} values, more than "
             "a Dr.Jit array can (2^32); lower the film's 'width' and 'height'")
     raise ParameterError(
-        plugin, parameter,
+        PLUGIN_NAME, parameter,
         f"makes one launch hold {entries:,} values, more than a Dr.Jit array can (2^32); "
         f"lower '{parameter}'")
 
 
-def _check_fits(plan: RenderPlan, demand: Demand, available: int | None, plugin: str) -> None:
+def _check_fits(plan: RenderPlan, demand: Demand, available: int | None) -> None:
     """Refuse a plan whose peak passes what the machine has left."""
     if available is None or plan.peak_bytes + RESERVE <= available:
         return
@@ -143,11 +144,11 @@ def _check_fits(plan: RenderPlan, demand: Demand, available: int | None, plugin:
         "film": ("film", "lower the film's 'width' and 'height'" + (
             ", or render to a file with 'mitsuba-whitted render', which needs no film of the "
             "whole image" if demand.film_entries else "")),
-        "band": (demand.samples_parameter, f"lower '{demand.samples_parameter}'"),
+        "band": ("aa_budget", "lower 'aa_budget'"),
         "launch": (demand.launch_parameter, f"lower '{demand.launch_parameter}'"),
     }[largest]
     raise ParameterError(
-        plugin, parameter,
+        PLUGIN_NAME, parameter,
         f"makes this {demand.width} x {demand.height} render need about "
         f"{plan.peak_bytes / GIB:.1f} GiB of memory ({largest}: {parts[largest] / GIB:.1f} GiB), "
         f"and {available / GIB:.1f} GiB are available; {advice}")

@@ -98,7 +98,6 @@ class Tracer:
                  wavefront_size: int = 1 << 18):
         self.shader = shader
         self.scene_ref = shader.scene_ref
-        self.settings = shader.settings
         self.wavefront_size = wavefront_size
         self.intersect = intersect
         self.refiner = refiner

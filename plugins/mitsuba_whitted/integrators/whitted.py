@@ -6,7 +6,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..jit import index_range
+from ..jit import in_launches, to_int
 from ..errors import ParameterError, VariantError, check, check_choice
 from ..parameters import LastValid, checked_numbers, describe
 from . import antialias, gradients, render_plan
@@ -383,13 +383,11 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         self._note_sample_count(spp)
         film = sensor.film()
         channels = _film_channels(film)
-        width, height = film.crop_size()
-        film_entries = width * height * (2 * channels - 1 if develop else channels)
 
         def take(band, radiance, alpha):
             film.put_block(_image_block(film, band, radiance, alpha, channels))
 
-        self.render_bands(scene, sensor, seed, take, film_entries,
+        self.render_bands(scene, sensor, seed, take, _film_entries(film, channels, develop),
                           prepare=lambda: film.prepare([]))
         return film.develop() if develop else mi.TensorXf()
 
@@ -401,7 +399,6 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         sensor, seed, replay, keys = self._gradient_setup(scene, params, sensor, seed, spp)
         film = sensor.film()
         channels = _film_channels(film)
-        width, height = film.crop_size()
 
         def take(band, radiance, alpha):
             tangent = gradients.band_tangent(radiance)
@@ -415,7 +412,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
             def tangent(positions, sample_keys, lens):
                 return replay.tangent(positions, sample_keys, lens, tangents)
 
-            self.render_bands(scene, sensor, seed, take, width * height * (2 * channels - 1),
+            self.render_bands(scene, sensor, seed, take, _film_entries(film, channels),
                               prepare=lambda: film.prepare([]),
                               shader=gradients.recording_shader(CameraShader, tangent))
         return film.develop()
@@ -498,7 +495,8 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         allocated; ``shader(tracer, sensor, progress)`` makes what traces the
         camera samples (a :class:`CameraShader` if not given)."""
         check_emitters(scene)
-        if self.aa == "none" and _has_aperture(sensor):
+        aperture = _has_aperture(sensor)
+        if self.aa == "none" and aperture:
             self._note_once("pinhole", "whitted: aa='none' traces each pixel from the centre "
                             "of the thin lens's aperture, so the image has no depth of field; "
                             "use 'grid', 'adaptive' or 'contrast'.")
@@ -509,11 +507,12 @@ class WhittedIntegrator(mi.SamplingIntegrator):
             prepare()
         tracer.captured = [] if self.capture_rays else None
         total = antialias.SampleCount()
+        lens = self.aa != "none" and aperture
         with tracer.scene_ref.holding(scene):
             shade = (shader or CameraShader)(tracer, sensor, self.progress)
             for index, band in enumerate(plan.bands()):
                 shade.label = _band_label(index, plan.band_count)
-                radiance, alpha, count = self._sample_pixels(band, shade, total.refined)
+                radiance, alpha, count = self._sample_pixels(band, shade, total.refined, lens)
                 _require_finite(radiance, alpha)
                 take(band, radiance, alpha)
                 total.add(count)
@@ -545,19 +544,19 @@ class WhittedIntegrator(mi.SamplingIntegrator):
                   f"camera sample stops at {MAX_TREE_RAYS} rays; lower 'max_depth' or raise "
                   "'min_throughput'.")
 
-    def _sample_pixels(self, band, shade, refined_before: int):
+    def _sample_pixels(self, band, shade, refined_before: int, lens: bool):
         """Radiance, alpha and sample count of ``band``; its refinement
-        samples' keys follow the ``refined_before`` of the bands above."""
+        samples' keys follow the ``refined_before`` of the bands above.
+        ``lens``: whether the samples take points of the sensor's aperture."""
         budget = antialias.SampleBudget(self.aa_budget, render_plan.BAND_SAMPLES)
-        lens = self.aa != "none" and _has_aperture(shade.sensor)
         if self.aa == "adaptive":
             sampler = antialias.AdaptiveSampler(self.aa_threshold, self.aa_max_depth, budget,
                                                 _warn, lens)
-            return sampler.render(band, shade, 4 * band.width * band.height + refined_before)
+            return sampler.render(band, shade, refined_before)
         if self.aa == "contrast":
             sampler = antialias.ContrastSampler(self.aa_threshold, self.aa_samples, budget,
                                                 _warn, lens)
-            return sampler.render(band, shade, band.width * band.height + refined_before)
+            return sampler.render(band, shade, refined_before)
         n = self.aa_samples if self.aa == "grid" else 1
         return antialias.render_grid(band, n, shade, lens)
 
@@ -654,22 +653,19 @@ class CameraShader:
 
     def _trace(self, positions: mi.Point2f, keys: mi.UInt32, lens: mi.Point2f = None):
         total = dr.width(positions)
-        if total <= self.batch:
-            # The whole batch in one launch (every adaptive level after the
-            # first): no copies in and out.
-            radiance, alpha = self.tracer.trace_camera(self.sensor, positions, keys, lens)
-        else:
-            radiance, alpha = dr.empty(mi.Color3f, total), dr.empty(mi.Float, total)
-            for start in range(0, total, self.batch):
-                stop = min(start + self.batch, total)
-                part = index_range(start, stop)
-                part_radiance, part_alpha = self.tracer.trace_camera(
-                    self.sensor, dr.gather(mi.Point2f, positions, part),
-                    dr.gather(mi.UInt32, keys, part),
-                    None if lens is None else dr.gather(mi.Point2f, lens, part))
-                dr.scatter(radiance, part_radiance, part)
-                dr.scatter(alpha, part_alpha, part)
-                self._report(stop, total)
+
+        def trace(start, stop, part):
+            if part is None:
+                # The whole batch in one launch (every adaptive level after
+                # the first): no copies in and out.
+                return self.tracer.trace_camera(self.sensor, positions, keys, lens)
+            return self.tracer.trace_camera(
+                self.sensor, dr.gather(mi.Point2f, positions, part),
+                dr.gather(mi.UInt32, keys, part),
+                None if lens is None else dr.gather(mi.Point2f, lens, part))
+
+        radiance, alpha = in_launches(total, self.batch, trace,
+                                      lambda stop: self._report(stop, total))
         dr.eval(radiance, alpha)
         # Wait here, where Dr.Jit lets other Python threads run: the
         # samplers' next dr.compress would wait for these launches holding
@@ -732,7 +728,7 @@ class _LastRender:
 def seed_value(seed) -> int:
     """A render seed as a Python number: ``mi.render`` passes what its
     caller gave, an int or an ``mi.UInt32`` (always one for gradients)."""
-    value = int(seed[0]) if dr.is_array_v(seed) else int(seed)
+    value = to_int(seed)
     check(0 <= value < 1 << 32, PLUGIN_NAME, "seed",
           f"must be a whole number from 0 to 2^32 - 1 (got {value})")
     return value
@@ -794,13 +790,13 @@ def _require_finite(radiance: mi.Color3f, alpha: mi.Float) -> None:
     """Stop before a NaN or infinite pixel reaches the image. The scene's
     emitters and placements are checked beforehand; what passes those and
     still overflows (a radiance beyond float32's range) is named here."""
-    bad = dr.count(~(dr.isfinite(radiance.x) & dr.isfinite(radiance.y)
-                     & dr.isfinite(radiance.z) & dr.isfinite(alpha)))
-    if bad[0] if dr.is_array_v(bad) else bad:
+    bad = to_int(dr.count(~(dr.isfinite(radiance.x) & dr.isfinite(radiance.y)
+                            & dr.isfinite(radiance.z) & dr.isfinite(alpha))))
+    if bad:
         raise ParameterError(
             PLUGIN_NAME, "scene",
-            f"gives {int(bad[0] if dr.is_array_v(bad) else bad)} pixel(s) a NaN or infinite "
-            "value: a radiance, intensity or reflectance in it is too large for float32")
+            f"gives {bad} pixel(s) a NaN or infinite value: a radiance, intensity or "
+            "reflectance in it is too large for float32")
 
 
 def _require_supported_variant():
@@ -826,6 +822,14 @@ def _film_channels(film: mi.Film) -> int:
         raise ParameterError(PLUGIN_NAME, "film",
                              f"must be an RGB(A) film such as 'hdrfilm' (got {film.class_name()})")
     return channels
+
+
+def _film_entries(film: mi.Film, channels: int, develop: bool = True) -> int:
+    """The floats a film of ``channels`` values per pixel holds during a
+    render: its storage, and where it is developed the developed image
+    (one value fewer per pixel: no weight)."""
+    width, height = film.crop_size()
+    return width * height * (2 * channels - 1 if develop else channels)
 
 
 def _settle_sampler(sensor: mi.Sensor) -> None:
