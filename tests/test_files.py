@@ -23,7 +23,7 @@ from mitsuba_whitted import cli
 from mitsuba_whitted.compare import ReferenceCache
 from mitsuba_whitted.compare.report import MarkdownReport
 from mitsuba_whitted.files import WriteError, replaced_folder
-from mitsuba_whitted.imageio import read_image, write_image
+from mitsuba_whitted.imageio import read_image, write_image, write_pixels
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENE = ROOT / "scenes" / "cosc363.xml"
@@ -191,6 +191,18 @@ def test_an_image_writer_failing_halfway_leaves_no_trace(tmp_path, monkeypatch, 
     os.umask(umask)
     assert target.stat().st_mode & 0o777 == (0o640 if existing else 0o666 & ~umask)
     assert [p.name for p in tmp_path.iterdir()] == ["x.exr"]
+
+
+@pytest.mark.parametrize("name, pixels", [
+    ("x.png", IMAGE), ("x.exr", np.zeros((4, 4, 3), np.uint8))], ids=["float-png", "uint8-exr"])
+def test_pixels_of_the_wrong_type_for_the_format_leave_the_file_alone(tmp_path, name, pixels):
+    target = target_in(tmp_path, name, True)
+    with pytest.raises(WriteError) as raised:
+        write_pixels(target, pixels)
+    stored = "uint8" if name.endswith("png") else "float32"
+    assert str(raised.value) == (f"mitsuba-whitted: cannot write '{target}': its pixels are "
+                                 f"{pixels.dtype}, and the format stores {stored}.")
+    assert_untouched(target, True)
 
 
 def test_a_symbolic_link_is_written_through_whole(tmp_path, monkeypatch):

@@ -52,7 +52,18 @@ def write_image(path: str | Path, image: np.ndarray) -> None:
     """Write an (height, width, channels) linear image to ``path``, whole
     or not at all."""
     path = _known_format(path)
-    pixels = stored_pixels(path, image)
+    write_pixels(path, stored_pixels(path, image))
+
+
+def write_pixels(path: str | Path, pixels: np.ndarray) -> None:
+    """Write (height, width, channels) pixels, already as the format of
+    ``path`` stores them (uint8 sRGB for PNG and JPEG, float32 otherwise),
+    whole or not at all."""
+    path = _known_format(path)
+    wanted = np.uint8 if path.suffix.lower() in LDR_SUFFIXES else np.float32
+    if pixels.dtype != wanted:
+        raise ImageWriteError(f"mitsuba-whitted: cannot write '{path}': its pixels "
+                              f"are {pixels.dtype}, and the format stores {np.dtype(wanted)}.")
     height, width, channels = pixels.shape
     with _Encoder(path, width, height, channels) as encoder:
         encoder.check(encoder.out.write_image(pixels), "write_image")
