@@ -31,26 +31,17 @@ import numpy as np
 
 import mitsuba_whitted
 from mitsuba_whitted.compare.reference import path_settings, reference_tasks, render_reference
+from mitsuba_whitted.jit import timed
 from mitsuba_whitted.system import machine
 from mitsuba_whitted.distributed import InProcess, SceneSource, run_job
+from validation.scenes import REPORT_SCENE
 
-REPORT_SCENE = Path(__file__).resolve().parent.parent / "scenes" / "cosc363.xml"
 #: Tasks per job when measuring the overhead, and their samples per pixel.
 TASKS, TASK_SPP = 16, (1, 4, 16, 64, 256)
 #: The overhead's share of a task's render that counts as small.
 SMALL_SHARE = 0.05
 #: Seconds for the workers' task events to reach Ray's timeline.
 TIMELINE_FLUSH_SECONDS = 3
-
-
-def timed(function, repeats: int) -> float:
-    """Median wall time of ``repeats`` calls."""
-    times = []
-    for _ in range(repeats):
-        started = time.perf_counter()
-        function()
-        times.append(time.perf_counter() - started)
-    return statistics.median(times)
 
 
 def job(backend, source, spp: int, passes: int):
@@ -71,16 +62,16 @@ def speedup(source, spp: int, workers_list, rounds: int) -> dict:
     in_process()
     runs = {"in-process": []}
     for _ in range(rounds):
-        runs["in-process"].append({"seconds": timed(in_process, 1)})
+        runs["in-process"].append({"seconds": timed(in_process, 1)[1][0]})
         for workers in workers_list:
             started = time.perf_counter()
             with RayBackend.start(workers, None) as backend:
                 ready = time.perf_counter() - started
                 # The first run starts the workers, imports Mitsuba in each,
                 # compiles and loads the scene.
-                cold = timed(reference(backend), 1)
+                cold = timed(reference(backend), 1)[1][0]
                 runs.setdefault(f"{workers} workers", []).append(
-                    {"seconds": timed(reference(backend), 1), "ray_start_seconds": ready,
+                    {"seconds": timed(reference(backend), 1)[1][0], "ray_start_seconds": ready,
                      "first_run_seconds": cold})
     base = [run["seconds"] for run in runs.get(f"{workers_list[0]} workers", [])]
     rows = {}
@@ -107,7 +98,7 @@ def overhead(source, repeats: int) -> dict:
             run()
             for _ in range(repeats):
                 since = time.time()
-                wall = timed(run, 1) / TASKS
+                wall = timed(run, 1)[1][0] / TASKS
                 windows.append((spp, wall, since, time.time()))
         executed = execute_spans()
     rows = []

@@ -28,7 +28,9 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from mitsuba_whitted.files import write_text
 from mitsuba_whitted.imageio import write_image
+from validation.scenes import camera, point_light, rgb, sphere, wall
 
 ROOT = Path(__file__).resolve().parent.parent
 #: Not under report/, which ``make validate`` writes anew.
@@ -54,22 +56,14 @@ def scene_description(texture: np.ndarray, integrator: dict,
                       resolution: int = RESOLUTION) -> dict:
     """The mirror, the glass ball, the textured ball behind the camera and
     two point lights."""
-    def rgb(*value):
-        return {"type": "rgb", "value": list(value)}
-
-    look = mi.ScalarTransform4f().look_at([0, 0.3, 5], [0, 0, 0], [0, 1, 0])
+    mirror = {"type": "conductor", "material": "none",
+              "specular_reflectance": rgb(0.9, 0.9, 0.9)}
     return {
         "type": "scene",
         "integrator": integrator,
-        "sensor": {"type": "perspective", "fov": 40, "to_world": look,
-                   "film": {"type": "hdrfilm", "width": resolution, "height": resolution,
-                            "rfilter": {"type": "box"}}},
-        "mirror": {"type": "rectangle",
-                   "to_world": mi.ScalarTransform4f().translate([0, 0, -0.5]).scale(3),
-                   "bsdf": {"type": "conductor", "material": "none",
-                            "specular_reflectance": rgb(0.9, 0.9, 0.9)}},
-        "glass": {"type": "sphere", "center": [0.55, 0.15, 2.2], "radius": 0.55,
-                  "bsdf": {"type": "dielectric", "int_ior": 1.5}},
+        "sensor": camera(origin=[0, 0.3, 5], size=resolution),
+        "mirror": wall(z=-0.5, size=3, bsdf=mirror),
+        "glass": sphere((0.55, 0.15, 2.2), 0.55, {"type": "dielectric", "int_ior": 1.5}),
         # Turned so that the lemons face the mirror.
         "ball": {"type": "sphere",
                  "to_world": mi.ScalarTransform4f().translate([0, 0.3, 7.0]).rotate([0, 1, 0], 90)
@@ -77,8 +71,8 @@ def scene_description(texture: np.ndarray, integrator: dict,
                  "bsdf": {"type": "diffuse", "reflectance": {
                      "type": "bitmap", "bitmap": mi.Bitmap(texture), "format": "variant",
                      "raw": True}}},
-        "key": {"type": "point", "position": [2, 3, 3], "intensity": rgb(60, 60, 60)},
-        "fill": {"type": "point", "position": [-3, 1, 2], "intensity": rgb(25, 25, 25)},
+        "key": point_light((2, 3, 3), 60),
+        "fill": point_light((-3, 1, 2), 25),
     }
 
 
@@ -158,14 +152,8 @@ def write_results(problem: Problem, history: list, name: str, out: Path) -> None
     write_image(out / "start_texture.png", np.full_like(problem.truth, 0.5))
     seen = problem.seen.astype(np.float32)
     write_image(out / "seen_texels.png", seen)
-    _write_atomically(out / f"{name}_history.json", json.dumps(history, indent=1))
+    write_text(out / f"{name}_history.json", json.dumps(history, indent=1))
     plot_histories(out)
-
-
-def _write_atomically(path: Path, text: str) -> None:
-    temporary = path.with_suffix(path.suffix + ".tmp")
-    temporary.write_text(text)
-    temporary.replace(path)
 
 
 def plot_histories(out: Path) -> Path:

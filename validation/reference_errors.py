@@ -44,9 +44,8 @@ def blend_bsdf(diffuse=BLACK, weight=MIRROR_WEIGHT) -> dict:
 def blend_plane_scene(diffuse=BLACK, weight=MIRROR_WEIGHT, size: int = 128) -> dict:
     """The plane y = 0 of the blend under a uniform sky of radiance 1, seen
     obliquely from above (incidence cosines from 0.3 to 0.95)."""
-    plane = mi.ScalarTransform4f().rotate([1, 0, 0], -90).scale(40)
     return {"type": "scene", "sensor": scenes.camera((0, 2, 3), (0, 0, -1), fov=60, size=size),
-            "plane": {"type": "rectangle", "to_world": plane, "bsdf": blend_bsdf(diffuse, weight)},
+            "plane": scenes.floor(y=0.0, size=40, bsdf=blend_bsdf(diffuse, weight)),
             "sky": scenes.sky(1)}
 
 
@@ -78,8 +77,7 @@ def parallel_rays(cos: float, count: int = 64) -> mi.Ray3f:
     """``count`` parallel rays meeting the plane y = 0 at incidence ``cos``."""
     direction = np.tile([math.sqrt(1 - cos * cos), -cos, 0.0], (count, 1))
     origin = np.c_[np.linspace(-1, 1, count), np.ones(count), np.zeros(count)]
-    return mi.Ray3f(mi.Point3f(*origin.astype(np.float32).T),
-                    mi.Vector3f(*direction.astype(np.float32).T))
+    return float32_rays(origin, direction)
 
 
 @dataclass
@@ -266,10 +264,8 @@ def ball_positions() -> list:
 def pass_through_scene(with_balls: bool = True, size: int = 128) -> dict:
     """A floor lit by a point light above a row of balls, one of each of
     the ``PASS_THROUGH`` surfaces."""
-    floor = mi.ScalarTransform4f().rotate([1, 0, 0], -90).scale(4)
     scene = {"type": "scene", "sensor": scenes.camera((0, 2.0, 6.0), fov=45, size=size),
-             "floor": {"type": "rectangle", "to_world": floor,
-                       "bsdf": scenes.diffuse(0.6, 0.6, 0.6)},
+             "floor": scenes.floor(y=0.0),
              "lamp": scenes.point_light((0, LAMP_HEIGHT, 0), 40)}
     if with_balls:
         for index, ((bsdf, _), centre) in enumerate(zip(PASS_THROUGH.values(), ball_positions())):

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
-from ..jit import timed
+from ..jit import concat, timed
 
 #: The casts of the bound: ``ray_intersect`` of the camera, reflected,
 #: refracted and pass-through rays, ``ray_test`` of the shadow rays, and
@@ -63,18 +63,13 @@ def _joined(parts: list) -> mi.Ray3f:
     on the device (a round trip through NumPy would hand the kernels memory
     of arbitrary alignment, and so kernels that differ from process to
     process); their lengths where they have any. ``dr.concat`` refuses an
-    empty part, and concatenates flat arrays only."""
+    empty part."""
     parts = [part for part in parts if dr.width(part.o)]
     if not parts:
         return mi.Ray3f()
-
-    def joined(vector_type, field: str):
-        return vector_type(*[dr.concat([getattr(part, field)[axis] for part in parts])
-                             for axis in range(3)])
-
-    ray = mi.Ray3f(joined(mi.Point3f, "o"), joined(mi.Vector3f, "d"))
+    ray = mi.Ray3f(concat([part.o for part in parts]), concat([part.d for part in parts]))
     if hasattr(parts[0], "maxt"):
-        ray.maxt = dr.concat([part.maxt for part in parts])
+        ray.maxt = concat([part.maxt for part in parts])
     return ray
 
 

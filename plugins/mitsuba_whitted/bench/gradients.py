@@ -21,7 +21,6 @@ to reach that error is extrapolated from its ladder at that rate.
 from __future__ import annotations
 
 import statistics
-import time
 from pathlib import Path
 
 import drjit as dr
@@ -135,7 +134,7 @@ def relative_error(estimate: np.ndarray, exact: np.ndarray) -> float:
 def equal_error_gradient(resolution: int, largest_spp: int, seeds: int, repeats: int) -> dict:
     """Time and error of whitted's gradient and of prb's at 1, 4, ...
     ``largest_spp`` paths per pixel (see the module's docstring)."""
-    from ..compare.gradients import gradient_values, prb_gradient_batches, whitted_gradient
+    from ..compare.gradients import prb_gradient_batches, whitted_gradient
 
     scene = mi.load_dict(equivalence_scene(resolution))
     params = mi.traverse(scene)
@@ -150,11 +149,10 @@ def equal_error_gradient(resolution: int, largest_spp: int, seeds: int, repeats:
     while spp <= largest_spp:
         estimates, prb_seconds = [], []
         for seed in range(seeds):
-            start = time.perf_counter()
-            estimates.append(prb_gradient_batches(scene, params, keys, 1, spp,
-                                                  EQUAL_ERROR_DEPTH, seed)[0])
-            dr.sync_thread()
-            prb_seconds.append(time.perf_counter() - start)
+            estimate, (elapsed,) = timed(lambda: prb_gradient_batches(
+                scene, params, keys, 1, spp, EQUAL_ERROR_DEPTH, seed)[0], 1)
+            estimates.append(estimate)
+            prb_seconds.append(elapsed)
         ladder.append({"spp": spp, "seconds": statistics.median(prb_seconds),
                        "rel_error": statistics.mean(relative_error(e, exact)
                                                     for e in estimates)})
@@ -162,7 +160,6 @@ def equal_error_gradient(resolution: int, largest_spp: int, seeds: int, repeats:
     last = ladder[-1]
     # prb's error falls as 1/sqrt(spp) and its time grows as spp.
     needed = last["spp"] * (last["rel_error"] / max(rounding, 1e-12)) ** 2
-    gradient_values(params, keys)
     percent = next((row for row in ladder if row["rel_error"] <= 0.01), None)
     return {"scene": "a Phong ball before a gold mirror, two point lights",
             "resolution": resolution, "entries": int(exact.size),

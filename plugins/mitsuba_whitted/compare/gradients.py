@@ -50,8 +50,8 @@ def prb_gradient_batches(scene: mi.Scene, params, keys, batches: int, spp: int,
                         spp)
     count = dr.width(rays.o)
     result = np.empty((batches, len(keys), 3))
+    sampler = mi.load_dict({"type": "independent"})
     for batch in range(batches):
-        sampler = mi.load_dict({"type": "independent"})
         sampler.seed(seed * 1_000_003 + batch, count)
         # As prb's own render_backward: the replay of the same paths
         # resumes differentiation where it needs it.
