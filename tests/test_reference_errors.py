@@ -40,7 +40,6 @@ def test_blendbsdf_darkens_its_delta_lobe(diffuse, weight):
 def test_whitted_renders_the_blend_of_a_black_diffuse_and_a_mirror_exactly():
     rows = reference_errors.blend_delta_lobe(cosines=(1.0, 0.2))
     assert all(row.whitted_error <= 1e-7 for row in rows)
-    assert all(np.array_equal(row.true, [0.35] * 3) for row in rows)
 
 
 def test_mitsuba_cylinder_is_never_hit_from_1e4_radii():
