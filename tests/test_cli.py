@@ -4,7 +4,6 @@ import os
 import re
 import subprocess
 import sys
-from pathlib import Path
 
 import drjit as dr
 import mitsuba as mi
@@ -13,9 +12,8 @@ import pytest
 
 from mitsuba_whitted.cli import main, run_command
 from mitsuba_whitted.imageio import read_image, to_8bit
+from validation.scenes import REPORT_SCENE, ROOT
 
-ROOT = Path(__file__).resolve().parent.parent
-SCENE = ROOT / "scenes" / "cosc363.xml"
 
 
 def cli(*args, check=True, env=None):
@@ -26,7 +24,8 @@ def cli(*args, check=True, env=None):
 
 def test_render_report_scene_small(tmp_path):
     out = tmp_path / "small.exr"
-    result = cli("render", str(SCENE), "-o", str(out), "-D", "res=48", "-D", "aa_max_depth=3")
+    result = cli("render", str(REPORT_SCENE), "-o", str(out), "-D", "res=48",
+                 "-D", "aa_max_depth=3")
     image = read_image(out)
     assert image.shape == (48, 48, 3)
     assert np.isfinite(image).all() and image.max() > 0.1
@@ -48,7 +47,7 @@ def test_scenes_load_with_the_same_registry_ids_in_every_process():
     """Dr.Jit compiles registry ids into the kernels' virtual calls, so the
     kernel cache hits in a new process only if they come out the same
     (Mitsuba's parallel loading hands them out in thread order)."""
-    outputs = {subprocess.run([sys.executable, "-c", REGISTRY_IDS, str(SCENE)], cwd=ROOT,
+    outputs = {subprocess.run([sys.executable, "-c", REGISTRY_IDS, str(REPORT_SCENE)], cwd=ROOT,
                               capture_output=True, text=True, check=True).stdout.splitlines()[-1]
                for _ in range(4)}
     assert len(outputs) == 1
@@ -62,7 +61,7 @@ def test_a_second_process_compiles_nothing(tmp_path):
     where NumPy allocated it) would compile it anew on every run."""
     env = dict(os.environ, HOME=str(tmp_path / "home"), XDG_CACHE_HOME=str(tmp_path / "cache"))
     cached = tmp_path / "home" / ".drjit"
-    render = ("render", str(SCENE), "-o", str(tmp_path / "a.exr"), "-D", "res=16")
+    render = ("render", str(REPORT_SCENE), "-o", str(tmp_path / "a.exr"), "-D", "res=16")
     cli(*render, env=env)
     first = set(cached.iterdir())
     cli(*render, env=env)
@@ -71,7 +70,8 @@ def test_a_second_process_compiles_nothing(tmp_path):
 
 def test_png_is_the_srgb_encoding_of_the_exr(tmp_path):
     for suffix in ("exr", "png"):
-        cli("render", str(SCENE), "-o", str(tmp_path / f"a.{suffix}"), "-D", "res=24", "-D", "aa=none")
+        cli("render", str(REPORT_SCENE), "-o", str(tmp_path / f"a.{suffix}"), "-D", "res=24",
+            "-D", "aa=none")
     linear = read_image(tmp_path / "a.exr")
     encoded = np.round(read_image(tmp_path / "a.png") * 255)
     np.testing.assert_array_equal(encoded, to_8bit(linear))
@@ -103,14 +103,18 @@ def assert_one_sentence(result, message, code=2):
 @pytest.mark.parametrize("args, message", [
     (["render", "missing.xml", "-o", "x.png"], "scene file 'missing.xml' does not exist"),
     (["render", "scenes", "-o", "x.png"], "scene file 'scenes' is a folder, not a file"),
-    (["render", str(SCENE), "-o", "x.png", "-D", "aa=fancy"], "whitted: parameter 'aa' must be one of"),
-    (["render", str(SCENE), "-o", "x.png", "-D", "res"], "-D expects name=value"),
-    (["render", str(SCENE), "-o", "x.gif", "-D", "res=8"], "cannot write 'x.gif'"),
-    (["render", str(SCENE), "-o", "x.png", "--variant", "nope"], "variant 'nope' is not available"),
-    (["render", str(SCENE), "-o", "x.png", "--variant", "scalar_rgb"], "whitted: the wavefront integrator needs a JIT variant"),
-    (["render", str(SCENE), "-o", "x.png", "-D", "fov=3"], "Found unused parameters: $fov=3"),
+    (["render", str(REPORT_SCENE), "-o", "x.png", "-D", "aa=fancy"],
+     "whitted: parameter 'aa' must be one of"),
+    (["render", str(REPORT_SCENE), "-o", "x.png", "-D", "res"], "-D expects name=value"),
+    (["render", str(REPORT_SCENE), "-o", "x.gif", "-D", "res=8"], "cannot write 'x.gif'"),
+    (["render", str(REPORT_SCENE), "-o", "x.png", "--variant", "nope"],
+     "variant 'nope' is not available"),
+    (["render", str(REPORT_SCENE), "-o", "x.png", "--variant", "scalar_rgb"],
+     "whitted: the wavefront integrator needs a JIT variant"),
+    (["render", str(REPORT_SCENE), "-o", "x.png", "-D", "fov=3"],
+     "Found unused parameters: $fov=3"),
     (["bench", "--quick", str(ROOT / "Makefile")], "Makefile' is not well-formed XML"),
-    (["render", str(SCENE), "-o", "x.png", "--fast"],
+    (["render", str(REPORT_SCENE), "-o", "x.png", "--fast"],
      "mitsuba-whitted: unrecognized arguments: --fast; 'mitsuba-whitted --help' lists"),
     ([], "mitsuba-whitted: the following arguments are required: command"),
 ])

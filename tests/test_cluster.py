@@ -29,9 +29,10 @@ if importlib.util.find_spec("ray") is None:
                 allow_module_level=True)
 
 from ray_cluster import free_port, two_node_cluster  # noqa: E402
+from validation.scenes import REPORT_SCENE, ROOT  # noqa: E402
 
-ROOT = Path(__file__).resolve().parent.parent
-SCENES = [ROOT / "scenes" / "cosc363.xml", *sorted((ROOT / "scenes" / "cases").glob("*.xml"))]
+#: Every scene the project ships.
+SCENES = [REPORT_SCENE, *sorted((ROOT / "scenes" / "cases").glob("*.xml"))]
 GLASS = ROOT / "scenes" / "cases" / "glass_spheres.xml"
 JOB = Path(__file__).parent / "tools" / "cluster_job.py"
 #: Seconds any command of these tests may take.

@@ -22,9 +22,8 @@ from mitsuba_whitted.compare.report import number
 from mitsuba_whitted.imageio import read_image
 
 from conftest import assert_finite
+from validation.scenes import REPORT_SCENE, ROOT
 
-ROOT = Path(__file__).resolve().parent.parent
-SCENE = ROOT / "scenes" / "cosc363.xml"
 RNG = np.random.default_rng(363)
 
 
@@ -156,7 +155,7 @@ def test_second_reference_comes_from_the_cache(tmp_path):
 # -------------------------------------------------------- compare --quick
 
 def test_compare_quick_writes_a_consistent_report(tmp_path):
-    result = cli("compare", str(SCENE), "-D", "res=64", "--quick", "--out", str(tmp_path))
+    result = cli("compare", str(REPORT_SCENE), "-D", "res=64", "--quick", "--out", str(tmp_path))
     assert result.returncode == 0, result.stderr
     report = (tmp_path / "report.md").read_text()
     results = json.loads((tmp_path / "results.json").read_text())
@@ -209,7 +208,7 @@ def test_bad_input_to_compare_is_one_sentence(tmp_path, body, message):
 
 
 def test_too_few_reference_samples_is_one_sentence(tmp_path):
-    result = cli("compare", str(SCENE), "--reference-spp", "4", "--out", str(tmp_path))
+    result = cli("compare", str(REPORT_SCENE), "--reference-spp", "4", "--out", str(tmp_path))
     assert result.returncode == 2
     assert "--reference-spp must be at least 16 (got 4)" in result.stderr
     assert len(result.stderr.strip().splitlines()) == 1

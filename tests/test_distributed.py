@@ -8,7 +8,6 @@ import os
 import shutil
 import subprocess
 import sys
-from pathlib import Path
 
 import mitsuba as mi
 import numpy as np
@@ -21,9 +20,8 @@ from mitsuba_whitted.distributed import SceneShippingError, SceneSource, in_orde
 from mitsuba_whitted.distributed.scene import load_bundle
 from mitsuba_whitted.imageio import read_image
 from mitsuba_whitted.progress import Progress
+from validation.scenes import REPORT_SCENE, ROOT
 
-ROOT = Path(__file__).resolve().parent.parent
-REPORT_SCENE = ROOT / "scenes" / "cosc363.xml"
 GLASS = ROOT / "scenes" / "cases" / "glass_spheres.xml"
 
 

@@ -24,16 +24,15 @@ from mitsuba_whitted.compare import ReferenceCache
 from mitsuba_whitted.compare.report import MarkdownReport
 from mitsuba_whitted.files import WriteError, replaced_folder
 from mitsuba_whitted.imageio import read_image, write_image
+from validation.scenes import REPORT_SCENE, ROOT
 
-ROOT = Path(__file__).resolve().parent.parent
-SCENE = ROOT / "scenes" / "cosc363.xml"
 FORMATS = ("exr", "png", "jpg", "hdr", "pfm")
 OLD = b"an image the user already has\n" * 40
 IMAGE = np.linspace(0, 1, 48 * 32 * 3, dtype=np.float32).reshape(48, 32, 3)
 
 
 def render(*args):
-    return subprocess.run([sys.executable, "-m", "mitsuba_whitted.cli", "render", str(SCENE),
+    return subprocess.run([sys.executable, "-m", "mitsuba_whitted.cli", "render", str(REPORT_SCENE),
                            "-D", "res=16", "-D", "aa=none", *args],
                           capture_output=True, text=True, timeout=300, cwd=ROOT)
 
@@ -326,13 +325,13 @@ def test_the_output_is_checked_before_the_work_starts(tmp_path, monkeypatch, cap
     monkeypatch.setattr(mitsuba_whitted.compare, "compare_scene", never)
     blocker = blocked(tmp_path)
     argv, problem = {
-        "render-folder": (["render", str(SCENE), "-o", str(blocker / "x.png")],
+        "render-folder": (["render", str(REPORT_SCENE), "-o", str(blocker / "x.png")],
                           f"'{blocker}' is a file, not a folder"),
-        "render-suffix": (["render", str(SCENE), "-o", str(tmp_path / "x.gif")],
+        "render-suffix": (["render", str(REPORT_SCENE), "-o", str(tmp_path / "x.gif")],
                           "use one of .exr, .hdr, .jpeg, .jpg, .pfm, .png"),
         "bench": (["bench", "--quick", "--json", str(blocker / "b.json")],
                   f"'{blocker}' is a file, not a folder"),
-        "compare": (["compare", "--quick", str(SCENE), "--out", str(blocker)],
+        "compare": (["compare", "--quick", str(REPORT_SCENE), "--out", str(blocker)],
                     "it is a file, not a folder"),
     }[command]
     assert cli.main(argv) == 2
