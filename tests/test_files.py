@@ -10,7 +10,6 @@ mount); a writer that fails halfway is monkeypatched everywhere."""
 import errno
 import os
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -18,13 +17,14 @@ import OpenImageIO
 import pytest
 
 import mitsuba_whitted.bench
+import mitsuba_whitted.cli
 import mitsuba_whitted.compare
-from mitsuba_whitted import cli
+from conftest import cli, one_line
 from mitsuba_whitted.compare import ReferenceCache
 from mitsuba_whitted.compare.report import MarkdownReport
 from mitsuba_whitted.files import WriteError, replaced_folder
 from mitsuba_whitted.imageio import read_image, write_image
-from validation.scenes import REPORT_SCENE, ROOT
+from validation.scenes import REPORT_SCENE
 
 FORMATS = ("exr", "png", "jpg", "hdr", "pfm")
 OLD = b"an image the user already has\n" * 40
@@ -32,16 +32,7 @@ IMAGE = np.linspace(0, 1, 48 * 32 * 3, dtype=np.float32).reshape(48, 32, 3)
 
 
 def render(*args):
-    return subprocess.run([sys.executable, "-m", "mitsuba_whitted.cli", "render", str(REPORT_SCENE),
-                           "-D", "res=16", "-D", "aa=none", *args],
-                          capture_output=True, text=True, timeout=300, cwd=ROOT)
-
-
-def one_line(stderr: str) -> str:
-    lines = stderr.strip().splitlines()
-    assert len(lines) == 1, stderr
-    assert not lines[0].rstrip(".").endswith(":"), lines[0]
-    return lines[0]
+    return cli("render", str(REPORT_SCENE), "-D", "res=16", "-D", "aa=none", *args, timeout=300)
 
 
 def target_in(folder: Path, name: str, existing: bool) -> Path:
@@ -320,7 +311,7 @@ def test_the_output_is_checked_before_the_work_starts(tmp_path, monkeypatch, cap
     def never(*args, **kwargs):
         raise AssertionError("the work started")
 
-    monkeypatch.setattr(cli.mi, "render", never)
+    monkeypatch.setattr(mitsuba_whitted.cli.mi, "render", never)
     monkeypatch.setattr(mitsuba_whitted.bench, "run", never)
     monkeypatch.setattr(mitsuba_whitted.compare, "compare_scene", never)
     blocker = blocked(tmp_path)
@@ -334,6 +325,6 @@ def test_the_output_is_checked_before_the_work_starts(tmp_path, monkeypatch, cap
         "compare": (["compare", "--quick", str(REPORT_SCENE), "--out", str(blocker)],
                     "it is a file, not a folder"),
     }[command]
-    assert cli.main(argv) == 2
+    assert mitsuba_whitted.cli.main(argv) == 2
     assert problem in one_line(capsys.readouterr().err)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a-file"]
