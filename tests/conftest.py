@@ -1,8 +1,15 @@
-"""Shared fixtures: every test runs in the JIT variant the package targets."""
+"""Shared fixtures: every test runs in the JIT variant the package targets.
+Also the helpers of the tests that run the command line as a user would."""
 
+import re
+import subprocess
+import sys
+
+import numpy as np
 import pytest
 
 import mitsuba_whitted
+from validation.scenes import ROOT
 
 VARIANT = mitsuba_whitted.DEFAULT_VARIANT
 # Set at import so test modules can build Mitsuba values at module level.
@@ -18,11 +25,32 @@ def variant():
 def assert_finite(image) -> None:
     """Every rendered image of the suite must be free of NaN and Inf."""
     values = image.numpy() if hasattr(image, "numpy") else image
-    import numpy as np
     assert np.isfinite(values).all(), f"{np.size(values) - np.isfinite(values).sum()} non-finite values"
 
 
 def address(array) -> int:
     """Where a flat LLVM array's memory is (NumPy views it without a copy)."""
-    import numpy as np
     return np.from_dlpack(array).ctypes.data
+
+
+def cli(*args, env=None, check=False, timeout=600):
+    """``mitsuba-whitted *args`` in a process of its own, started in the
+    repository's root; its output as text."""
+    return subprocess.run([sys.executable, "-m", "mitsuba_whitted.cli", *args], cwd=ROOT,
+                          env=env, capture_output=True, text=True, check=check,
+                          timeout=timeout)
+
+
+def one_line(stderr: str) -> str:
+    """The single line of ``stderr``, which must name its cause: no
+    traceback, no colour codes, no pointer elsewhere, no C++ source
+    location, no empty reason after a colon."""
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1, stderr
+    line = lines[0]
+    for noise in ("Traceback", "\x1b[", "(see above)", "drjit.custom"):
+        assert noise not in line, line
+    assert not re.search(r"\[\w+\.cpp:\d+\]", line), line
+    assert not line.rstrip(".").endswith(":"), line
+    return line
+

@@ -5,20 +5,16 @@ No timing is asserted here: speed targets live in the benchmark itself."""
 
 import json
 import statistics
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
+from conftest import cli
+from validation.scenes import ROOT
 
 
 def test_bench_quick_writes_every_figure(tmp_path):
     out = tmp_path / "bench.json"
-    result = subprocess.run([sys.executable, "-m", "mitsuba_whitted.cli", "bench", "--quick",
-                             "--json", str(out)], capture_output=True, text=True, timeout=600,
-                            cwd=ROOT)
+    result = cli("bench", "--quick", "--json", str(out))
     assert result.returncode == 0, result.stderr
     figures = json.loads(out.read_text())
     for key in ("machine", "warm_render_s", "first_render_in_process_s", "second_render_in_process_s",

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import cli, one_line
 from mitsuba_whitted.compare import render_reference
 from mitsuba_whitted.distributed import SceneSource
 from mitsuba_whitted.imageio import read_image
@@ -29,9 +30,10 @@ if importlib.util.find_spec("ray") is None:
                 allow_module_level=True)
 
 from ray_cluster import free_port, two_node_cluster  # noqa: E402
+from validation.scenes import REPORT_SCENE, ROOT  # noqa: E402
 
-ROOT = Path(__file__).resolve().parent.parent
-SCENES = [ROOT / "scenes" / "cosc363.xml", *sorted((ROOT / "scenes" / "cases").glob("*.xml"))]
+#: Every scene the project ships.
+SCENES = [REPORT_SCENE, *sorted((ROOT / "scenes" / "cases").glob("*.xml"))]
 GLASS = ROOT / "scenes" / "cases" / "glass_spheres.xml"
 JOB = Path(__file__).parent / "tools" / "cluster_job.py"
 #: Seconds any command of these tests may take.
@@ -42,11 +44,6 @@ COMMAND_SECONDS = 300
 def cluster():
     with two_node_cluster() as running:
         yield running
-
-
-def cli(*args, env=None):
-    return subprocess.run([sys.executable, "-m", "mitsuba_whitted.cli", *args], cwd=ROOT,
-                          env=env, capture_output=True, text=True, timeout=COMMAND_SECONDS)
 
 
 def in_process_reference(scene, res, spp):
@@ -129,11 +126,12 @@ def test_ctrl_c_cancels_the_tasks_and_the_cache_stays_consistent(cluster, tmp_pa
 def _render_many_matches_render(tmp_path, *options, env=None):
     out = tmp_path / "many"
     result = cli("render-many", *map(str, SCENES), "--out", str(out), "-D", "res=24", *options,
-                 env=env)
+                 env=env, timeout=COMMAND_SECONDS)
     assert result.returncode == 0, result.stderr
     for scene in SCENES:
         single = tmp_path / f"{scene.stem}.exr"
-        assert cli("render", str(scene), "-o", str(single), "-D", "res=24").returncode == 0
+        assert cli("render", str(scene), "-o", str(single), "-D", "res=24",
+                   timeout=COMMAND_SECONDS).returncode == 0
         np.testing.assert_array_equal(read_image(out / f"{scene.stem}.exr"), read_image(single))
 
 
@@ -152,8 +150,9 @@ def test_render_many_on_a_local_ray_writes_what_render_writes(tmp_path):
 
 def test_unreachable_cluster_is_one_sentence_naming_the_address(tmp_path):
     address = f"127.0.0.1:{free_port()}"
-    result = cli("render-many", str(GLASS), "--out", str(tmp_path), "--cluster", address)
+    result = cli("render-many", str(GLASS), "--out", str(tmp_path), "--cluster", address,
+                 timeout=COMMAND_SECONDS)
     assert result.returncode != 0
-    lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1 and address in lines[0] and "no Ray cluster answers" in lines[0]
+    line = one_line(result.stderr)
+    assert address in line and "no Ray cluster answers" in line
     assert not any(tmp_path.iterdir())

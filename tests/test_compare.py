@@ -7,8 +7,6 @@ the equivalence verdicts, and the files on disk for the cache.
 
 import json
 import re
-import subprocess
-import sys
 from pathlib import Path
 
 import mitsuba as mi
@@ -21,16 +19,10 @@ from mitsuba_whitted.compare import (ReferenceCache, SweepPoint, cache_key, cach
 from mitsuba_whitted.compare.report import number
 from mitsuba_whitted.imageio import read_image
 
-from conftest import assert_finite
+from conftest import assert_finite, cli, one_line
+from validation.scenes import REPORT_SCENE
 
-ROOT = Path(__file__).resolve().parent.parent
-SCENE = ROOT / "scenes" / "cosc363.xml"
 RNG = np.random.default_rng(363)
-
-
-def cli(*args):
-    return subprocess.run([sys.executable, "-m", "mitsuba_whitted.cli", *args],
-                          capture_output=True, text=True, timeout=300, cwd=ROOT)
 
 
 # ---------------------------------------------------------------- metrics
@@ -156,7 +148,8 @@ def test_second_reference_comes_from_the_cache(tmp_path):
 # -------------------------------------------------------- compare --quick
 
 def test_compare_quick_writes_a_consistent_report(tmp_path):
-    result = cli("compare", str(SCENE), "-D", "res=64", "--quick", "--out", str(tmp_path))
+    result = cli("compare", str(REPORT_SCENE), "-D", "res=64", "--quick", "--out", str(tmp_path),
+                 timeout=300)
     assert result.returncode == 0, result.stderr
     report = (tmp_path / "report.md").read_text()
     results = json.loads((tmp_path / "results.json").read_text())
@@ -202,14 +195,13 @@ def _scene_file(tmp_path, body):
 ])
 def test_bad_input_to_compare_is_one_sentence(tmp_path, body, message):
     scene = "missing.xml" if body is None else _scene_file(tmp_path, body)
-    result = cli("compare", scene, "--quick", "--out", str(tmp_path / "out"))
+    result = cli("compare", scene, "--quick", "--out", str(tmp_path / "out"), timeout=300)
     assert result.returncode == 2
-    assert message in result.stderr
-    assert len(result.stderr.strip().splitlines()) == 1, result.stderr
+    assert message in one_line(result.stderr)
 
 
 def test_too_few_reference_samples_is_one_sentence(tmp_path):
-    result = cli("compare", str(SCENE), "--reference-spp", "4", "--out", str(tmp_path))
+    result = cli("compare", str(REPORT_SCENE), "--reference-spp", "4", "--out", str(tmp_path),
+                 timeout=300)
     assert result.returncode == 2
-    assert "--reference-spp must be at least 16 (got 4)" in result.stderr
-    assert len(result.stderr.strip().splitlines()) == 1
+    assert "--reference-spp must be at least 16 (got 4)" in one_line(result.stderr)

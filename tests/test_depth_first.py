@@ -1,21 +1,18 @@
 """The depth-first tracer: its per-lane stack against a plain-Python stack, and
 its images and ray counts against the wavefront tracer's."""
 
-from pathlib import Path
-
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 import pytest
 
 from conftest import assert_finite
-from validation.scenes import (camera, floor, glass_scene, integrator, point_light, rgb, scene,
-                              sphere, wall)
+from validation.scenes import (REPORT_SCENE, ROOT, camera, floor, glass_scene, integrator,
+                               point_light, rgb, scene, sphere, wall)
 from mitsuba_whitted.integrators.depth_first import (MAX_STACK, DepthFirstTracer, LaneStack,
                                                      stack_capacity)
 from mitsuba_whitted.integrators.wavefront import WavefrontTracer
 
-ROOT = Path(__file__).resolve().parent.parent
 CAPACITY = 6
 ROOTS = [0.5, 3.0, 10.0, 7.0, 2.2, 30.0, 1.5, 4.0, 12.0, 0.1, 17.0, 2.0]
 
@@ -141,7 +138,7 @@ def test_stack_and_wavefront_tracers_agree(settings):
 
 def test_tracers_agree_on_the_report_scene():
     """Cylinder refinement, tinted shadows, textures, three delta components."""
-    loaded = mi.load_file(str(ROOT / "scenes" / "cosc363.xml"), res="64", aa_max_depth="3")
+    loaded = mi.load_file(str(REPORT_SCENE), res="64", aa_max_depth="3")
     (stack, stack_counts), (wave, wave_counts) = _render_both(loaded, loaded.integrator())
     np.testing.assert_allclose(stack, wave, rtol=1e-5, atol=1e-6)
     assert {k: stack_counts[k] for k in COUNTS} == {k: wave_counts[k] for k in COUNTS}
@@ -165,7 +162,7 @@ def test_every_anti_aliasing_level_replays_one_recording():
     launch and memory in the next makes Dr.Jit record again), and so do
     later renders (``mi.render`` seeds the sensor's sampler after each
     render, which the kernels take as an input with the sensor)."""
-    loaded = mi.load_file(str(ROOT / "scenes" / "cosc363.xml"), res="96", aa_max_depth="4")
+    loaded = mi.load_file(str(REPORT_SCENE), res="96", aa_max_depth="4")
     for _ in range(3):
         mi.render(loaded)
         assert loaded.integrator().last_stats["aa_levels"] == 4

@@ -6,30 +6,22 @@ import hashlib
 import io
 import os
 import shutil
-import subprocess
-import sys
-from pathlib import Path
 
 import mitsuba as mi
 import numpy as np
 import pytest
 
 import mitsuba_whitted
+from conftest import cli, one_line
 from mitsuba_whitted.compare import render_reference
 from mitsuba_whitted.compare.reference import REFERENCE_SEED, path_settings
 from mitsuba_whitted.distributed import SceneShippingError, SceneSource, in_order
 from mitsuba_whitted.distributed.scene import load_bundle
 from mitsuba_whitted.imageio import read_image
 from mitsuba_whitted.progress import Progress
+from validation.scenes import REPORT_SCENE, ROOT
 
-ROOT = Path(__file__).resolve().parent.parent
-REPORT_SCENE = ROOT / "scenes" / "cosc363.xml"
 GLASS = ROOT / "scenes" / "cases" / "glass_spheres.xml"
-
-
-def cli(*args, env=None):
-    return subprocess.run([sys.executable, "-m", "mitsuba_whitted.cli", *args], cwd=ROOT,
-                          env=env, capture_output=True, text=True, timeout=600)
 
 
 def test_a_bundle_renders_the_scene_without_its_files(tmp_path):
@@ -121,8 +113,7 @@ def test_render_many_refuses_bad_input_in_one_sentence(tmp_path, make_args, word
     out = tmp_path / "out"
     result = cli("render-many", *make_args(tmp_path), "--out", str(out))
     assert result.returncode == 2
-    lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1 and words in lines[0], result.stderr
+    assert words in one_line(result.stderr)
     assert not out.exists()
 
 
@@ -148,9 +139,8 @@ def test_render_needs_no_ray(tmp_path, without_ray):
 def test_workers_without_ray_is_one_sentence(tmp_path, without_ray, option):
     result = cli("render-many", str(GLASS), "--out", str(tmp_path), *option, env=without_ray)
     assert result.returncode == 2
-    lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1 and "needs Ray" in lines[0] and "[cluster]" in lines[0]
-    assert option[0] in lines[0]
+    line = one_line(result.stderr)
+    assert "needs Ray" in line and "[cluster]" in line and option[0] in line
 
 
 class _Terminal(io.StringIO):

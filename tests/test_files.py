@@ -10,7 +10,6 @@ mount); a writer that fails halfway is monkeypatched everywhere."""
 import errno
 import os
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -18,31 +17,22 @@ import OpenImageIO
 import pytest
 
 import mitsuba_whitted.bench
+import mitsuba_whitted.cli
 import mitsuba_whitted.compare
-from mitsuba_whitted import cli
+from conftest import cli, one_line
 from mitsuba_whitted.compare import ReferenceCache
 from mitsuba_whitted.compare.report import MarkdownReport
 from mitsuba_whitted.files import WriteError, replaced_folder
 from mitsuba_whitted.imageio import read_image, write_image, write_pixels
+from validation.scenes import REPORT_SCENE
 
-ROOT = Path(__file__).resolve().parent.parent
-SCENE = ROOT / "scenes" / "cosc363.xml"
 FORMATS = ("exr", "png", "jpg", "hdr", "pfm")
 OLD = b"an image the user already has\n" * 40
 IMAGE = np.linspace(0, 1, 48 * 32 * 3, dtype=np.float32).reshape(48, 32, 3)
 
 
 def render(*args):
-    return subprocess.run([sys.executable, "-m", "mitsuba_whitted.cli", "render", str(SCENE),
-                           "-D", "res=16", "-D", "aa=none", *args],
-                          capture_output=True, text=True, timeout=300, cwd=ROOT)
-
-
-def one_line(stderr: str) -> str:
-    lines = stderr.strip().splitlines()
-    assert len(lines) == 1, stderr
-    assert not lines[0].rstrip(".").endswith(":"), lines[0]
-    return lines[0]
+    return cli("render", str(REPORT_SCENE), "-D", "res=16", "-D", "aa=none", *args, timeout=300)
 
 
 def target_in(folder: Path, name: str, existing: bool) -> Path:
@@ -333,20 +323,20 @@ def test_the_output_is_checked_before_the_work_starts(tmp_path, monkeypatch, cap
     def never(*args, **kwargs):
         raise AssertionError("the work started")
 
-    monkeypatch.setattr(cli.mi, "render", never)
+    monkeypatch.setattr(mitsuba_whitted.cli.mi, "render", never)
     monkeypatch.setattr(mitsuba_whitted.bench, "run", never)
     monkeypatch.setattr(mitsuba_whitted.compare, "compare_scene", never)
     blocker = blocked(tmp_path)
     argv, problem = {
-        "render-folder": (["render", str(SCENE), "-o", str(blocker / "x.png")],
+        "render-folder": (["render", str(REPORT_SCENE), "-o", str(blocker / "x.png")],
                           f"'{blocker}' is a file, not a folder"),
-        "render-suffix": (["render", str(SCENE), "-o", str(tmp_path / "x.gif")],
+        "render-suffix": (["render", str(REPORT_SCENE), "-o", str(tmp_path / "x.gif")],
                           "use one of .exr, .hdr, .jpeg, .jpg, .pfm, .png"),
         "bench": (["bench", "--quick", "--json", str(blocker / "b.json")],
                   f"'{blocker}' is a file, not a folder"),
-        "compare": (["compare", "--quick", str(SCENE), "--out", str(blocker)],
+        "compare": (["compare", "--quick", str(REPORT_SCENE), "--out", str(blocker)],
                     "it is a file, not a folder"),
     }[command]
-    assert cli.main(argv) == 2
+    assert mitsuba_whitted.cli.main(argv) == 2
     assert problem in one_line(capsys.readouterr().err)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a-file"]

@@ -16,7 +16,6 @@ import subprocess
 import sys
 import time
 import tty
-from pathlib import Path
 
 import drjit as dr
 import mitsuba as mi
@@ -24,9 +23,8 @@ import numpy as np
 import pytest
 
 from mitsuba_whitted.integrators.frozen import FrozenKernel
+from validation.scenes import REPORT_SCENE, ROOT
 
-ROOT = Path(__file__).resolve().parent.parent
-SCENE = ROOT / "scenes" / "cosc363.xml"
 
 
 def interrupted(args, started_after: float = 1.0):
@@ -86,7 +84,7 @@ def assert_stopped(code, seconds, output, program="mitsuba-whitted"):
 @pytest.fixture
 def samples_scene(tmp_path):
     """The report's scene with its anti-aliasing samples as defaults too."""
-    text = SCENE.read_text().replace("../textures/", f"{ROOT}/textures/")
+    text = REPORT_SCENE.read_text().replace("../textures/", f"{ROOT}/textures/")
     text = text.replace('<default name="res" value="600"/>',
                         '<default name="res" value="600"/>'
                         '<default name="aa_samples" value="2"/>')
@@ -119,8 +117,9 @@ def test_ctrl_c_stops_a_render(tmp_path, samples_scene, defines):
 def test_ctrl_c_while_the_command_starts(tmp_path, after):
     """While Python imports Dr.Jit and Mitsuba (about half a second), before
     the command's own handling is in place."""
-    process = subprocess.Popen([sys.executable, "-m", "mitsuba_whitted.cli", "render", str(SCENE),
-                                "-o", str(tmp_path / "x.png")], stdout=subprocess.PIPE,
+    process = subprocess.Popen([sys.executable, "-m", "mitsuba_whitted.cli", "render",
+                                str(REPORT_SCENE), "-o", str(tmp_path / "x.png")],
+                               stdout=subprocess.PIPE,
                                stderr=subprocess.PIPE, text=True, cwd=ROOT)
     time.sleep(after)
     process.send_signal(signal.SIGINT)
@@ -132,7 +131,7 @@ def test_ctrl_c_while_the_command_starts(tmp_path, after):
 
 def test_ctrl_c_stops_compare(tmp_path):
     out = tmp_path / "out"
-    code, seconds, output = interrupted(["-m", "mitsuba_whitted.cli", "compare", str(SCENE),
+    code, seconds, output = interrupted(["-m", "mitsuba_whitted.cli", "compare", str(REPORT_SCENE),
                                          "--quick", "-D", "res=128", "--out", str(out)])
     assert_stopped(code, seconds, output)
     assert output.count("\n") == 1, output

@@ -2,14 +2,13 @@
 or not they declare those as $-parameters."""
 
 import shutil
-from pathlib import Path
 
 import mitsuba as mi
 import pytest
 
 from mitsuba_whitted.overrides import load_with
+from validation.scenes import REPORT_SCENE, ROOT
 
-ROOT = Path(__file__).resolve().parent.parent
 
 LITERAL_SCENE = """<scene version="3.0.0">
     <integrator type="whitted"><string name="aa" value="adaptive"/></integrator>
@@ -61,7 +60,7 @@ def test_parameters_the_scene_declares_are_set_through_them():
     """The report's scene names its resolution and depths as $res,
     $max_depth, $aa_max_depth: a define of one of them must not become an
     unused parameter (which Mitsuba refuses) when a setting replaces it."""
-    loaded = load_with(ROOT / "scenes" / "cosc363.xml", {"res": "300", "max_depth": "3"},
+    loaded = load_with(REPORT_SCENE, {"res": "300", "max_depth": "3"},
                        {"res": 64, "aa_max_depth": 2})
     assert list(loaded.sensors()[0].film().size()) == [64, 64]
     whitted = loaded.integrator()

@@ -14,8 +14,10 @@ from conftest import assert_finite
 from mitsuba_whitted.integrators.scene_needs import analyse
 from mitsuba_whitted.integrators.scene_ref import SceneRef
 from mitsuba_whitted.integrators.depth_first import LAUNCH_FACTOR, DepthFirstTracer
+from validation.oracles.fresnel import reflectance
 from validation.scenes import (camera, diffuse, floor, glass_scene, integrator, point_light, rgb, scene,
                     sphere)
+from validation.stability.common import unit_rows
 
 TINT = (0.8, 0.5, 0.3)
 
@@ -28,14 +30,20 @@ def render(description, **settings):
     return np.array(image), whitted
 
 
+#: The shadow scenes: a point light at height LAMP above a floor at height
+#: 0, an occluding ball of radius GLASS_RADIUS centred at height
+#: GLASS_CENTRE between them (index GLASS_IOR where it is glass).
+LAMP, GLASS_CENTRE, GLASS_RADIUS, GLASS_IOR = 4.0, 2.0, 0.5, 1.5
+
+
 def shadow_scene(occluder_bsdf=None):
     """A floor lit from straight above; an optional sphere between them.
 
     The camera looks at the floor's centre from the side, below the
     sphere, so only the shadow ray crosses the sphere."""
-    objects = [floor(y=0.0, size=3), point_light((0, 4, 0), 30.0)]
+    objects = [floor(y=0.0, size=3), point_light((0, LAMP, 0), 30.0)]
     if occluder_bsdf is not None:
-        objects.append(sphere((0, 2, 0), 0.5, occluder_bsdf))
+        objects.append(sphere((0, GLASS_CENTRE, 0), GLASS_RADIUS, occluder_bsdf))
     return scene(*objects, sensor=camera(origin=(0, 1, 4), target=(0, 0, 0), size=33))
 
 
@@ -85,11 +93,9 @@ def test_opaque_occluder_blocks_in_both_modes():
         assert np.all(centre == 0)
 
 
-#: A point light above a glass ball (index 1.5, tinted) above a diffuse
-#: floor: the tinted shadow in closed form.
-LAMP, GLASS_CENTRE, GLASS_RADIUS, GLASS_IOR = 4.0, 2.0, 0.5, 1.5
-#: Radius of the shadow's core on the floor: the cone from the light that
-#: grazes the ball.
+#: Radius of the core of the shadow that a tinted glass ball casts on the
+#: floor of shadow_scene (in closed form below): the cone from the light
+#: that grazes the ball.
 CORE = LAMP * math.tan(math.asin(GLASS_RADIUS / (LAMP - GLASS_CENTRE)))
 
 
@@ -102,27 +108,12 @@ def floor_transmittance(x, z):
                    mi.Vector3f(0, -1, 0))
     whitted = mi.load_dict(integrator(shadows="tinted"))
     values = []
-    for objects in ([], [sphere((0, GLASS_CENTRE, 0), GLASS_RADIUS, tinted_glass(GLASS_IOR))]):
-        loaded = mi.load_dict(scene(floor(y=0.0, size=3), point_light((0, LAMP, 0), 30.0),
-                                    *objects))
-        radiance, _ = whitted.trace_rays(loaded, ray)
+    for description in (shadow_scene(), shadow_scene(tinted_glass(GLASS_IOR))):
+        radiance, _ = whitted.trace_rays(mi.load_dict(description), ray)
         values.append(np.array(radiance, dtype=np.float64).T)
     lit, shaded = values
     assert np.all(lit > 0)
     return shaded / lit
-
-
-def fresnel_from_outside(cos_i, eta):
-    """Float64 unpolarised Fresnel reflectance of light arriving from the
-    side of index 1 on a medium of index ``eta``."""
-    cos_t = np.sqrt(1 - (1 - cos_i ** 2) / eta ** 2)
-    r_s = (cos_i - eta * cos_t) / (cos_i + eta * cos_t)
-    r_p = (eta * cos_i - cos_t) / (eta * cos_i + cos_t)
-    return (r_s ** 2 + r_p ** 2) / 2
-
-
-def _unit(v):
-    return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
 def _leave(p, n, d):
@@ -145,19 +136,19 @@ def tinted_closed_form(x, z):
     start = np.stack([x, np.zeros_like(x), z], axis=-1).astype(np.float32).astype(np.float64)
     light, centre = np.array([0, LAMP, 0.0]), np.array([0, GLASS_CENTRE, 0.0])
     origin = _leave(start, np.array([0, 1.0, 0]), light - start)
-    d = _unit(light - origin)
+    d = unit_rows(light - origin)
     along = np.sum((centre - origin) * d, axis=-1)
     b = np.linalg.norm(origin + along[:, None] * d - centre, axis=-1) / GLASS_RADIUS
     entry = origin + (along - GLASS_RADIUS * np.sqrt(np.clip(1 - b ** 2, 0, 1)))[:, None] * d
     n_entry = (entry - centre) / GLASS_RADIUS
     inside = _leave(entry, n_entry, d)
-    d_inside = _unit(light - inside)
+    d_inside = unit_rows(light - inside)
     along = np.sum((centre - inside) * d_inside, axis=-1)
     gap = np.linalg.norm(inside + along[:, None] * d_inside - centre, axis=-1) / GLASS_RADIUS
     exit_point = inside + (along + GLASS_RADIUS * np.sqrt(np.clip(1 - gap ** 2, 0, 1)))[:, None] * d_inside
     n_exit = (exit_point - centre) / GLASS_RADIUS
-    passed = ((1 - fresnel_from_outside(-np.sum(n_entry * d, axis=-1), GLASS_IOR))
-              * (1 - fresnel_from_outside(np.sum(n_exit * d_inside, axis=-1), GLASS_IOR)))
+    passed = ((1 - reflectance(-np.sum(n_entry * d, axis=-1), 1.0, GLASS_IOR))
+              * (1 - reflectance(np.sum(n_exit * d_inside, axis=-1), 1.0, GLASS_IOR)))
     value = np.where((b < 1)[:, None], passed[:, None] * np.square(TINT), 1.0)
     return value, b
 
