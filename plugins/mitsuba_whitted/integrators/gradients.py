@@ -256,11 +256,16 @@ class Replay:
 
     def tangent(self, positions, keys, lens, sources: list) -> mi.Color3f:
         """The samples' radiance tangent, from ``sources``: pairs of a
-        stand-in of a parameter and its tangent. The traversal starts
-        there, within the graph of this derivative, and keeps its edges for
-        the next tile; the stand-ins hold their tangents only meanwhile,
-        since the frozen kernels take them as inputs, and a frozen call
-        records anew for each new kind of input."""
+        stand-in of a parameter and its tangent.
+
+        Each tile's traversal keeps its edges for the next tile, and goes
+        only along paths that end in the tile's radiance: a value derived
+        from a stand-in and kept, which this tile does not read (a bitmap's
+        texels padded to four channels for packet gathers), would otherwise
+        keep the tangent it was given and pass it on a second time to the
+        first tile that reads it. The stand-ins hold their tangents only
+        meanwhile, since the frozen kernels take them as inputs, and a
+        frozen call records anew for each new kind of input."""
         count = dr.width(keys)
         tangent = dr.empty(mi.Color3f, count)
         for part in self._parts(count):
@@ -268,8 +273,7 @@ class Replay:
             with dr.resume_grad():
                 for leaf, value in sources:
                     dr.set_grad(leaf, value)
-                dr.enqueue(dr.ADMode.Forward, *[leaf for leaf, _ in sources])
-                dr.traverse(dr.ADMode.Forward, flags=dr.ADFlag.ClearInterior)
+                dr.forward_to(radiance, flags=dr.ADFlag.ClearInterior | dr.ADFlag.AllowNoGrad)
                 dr.scatter(tangent, dr.detach(dr.grad(radiance)), part)
                 for leaf, _ in sources:
                     dr.clear_grad(leaf)
