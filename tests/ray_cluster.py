@@ -33,7 +33,6 @@ def free_port() -> int:
 class Cluster:
     address: str
     env: dict
-    processes: list
 
 
 def _ray_start(arguments: list[str], env: dict) -> subprocess.Popen:
@@ -103,7 +102,7 @@ def two_node_cluster():
                                      f"--dashboard-agent-listen-port={free_port()}"], env))
         subprocess.run([sys.executable, "-c", WAIT_FOR_NODES, address, "2", str(START_SECONDS)],
                        env=env, check=True, timeout=START_SECONDS + 60, capture_output=True)
-        yield Cluster(address, env, processes)
+        yield Cluster(address, env)
     finally:
         for process in reversed(processes):
             _stop(process)

@@ -3,7 +3,6 @@ the in-process backend, merging in task order, ``render-many``, the
 progress bar, and the commands when Ray is not installed."""
 
 import hashlib
-import io
 import os
 import shutil
 
@@ -18,7 +17,6 @@ from mitsuba_whitted.compare.reference import REFERENCE_SEED, path_settings
 from mitsuba_whitted.distributed import SceneShippingError, SceneSource, in_order
 from mitsuba_whitted.distributed.scene import load_bundle
 from mitsuba_whitted.imageio import read_image
-from mitsuba_whitted.progress import Progress
 from validation.scenes import REPORT_SCENE, ROOT
 
 GLASS = ROOT / "scenes" / "cases" / "glass_spheres.xml"
@@ -141,27 +139,3 @@ def test_workers_without_ray_is_one_sentence(tmp_path, without_ray, option):
     assert result.returncode == 2
     line = one_line(result.stderr)
     assert "needs Ray" in line and "[cluster]" in line and option[0] in line
-
-
-class _Terminal(io.StringIO):
-    def isatty(self):
-        return True
-
-
-def test_progress_bar_shows_the_count_and_the_time_left():
-    stream = _Terminal()
-    progress = Progress(stream, min_interval=0)
-    for done in range(1, 4):
-        progress(done, 8, "reference passes")
-    progress.finish()
-    text = stream.getvalue()
-    assert "reference passes" in text and "3/8" in text
-    assert "<" in text  # elapsed<remaining
-
-
-def test_progress_bar_is_silent_off_a_terminal():
-    stream = io.StringIO()
-    progress = Progress(stream)
-    progress(1, 2, "passes")
-    progress.finish()
-    assert stream.getvalue() == ""
