@@ -8,6 +8,8 @@ its change from moving any silhouette or shadow edge, which is not
 differentiated.
 """
 
+import functools
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
@@ -149,7 +151,11 @@ def forward_derivative(description, key, component) -> float:
 
 
 def check_against_differences(description, key, component, step, rtol=RTOL):
+    """The backward gradient of ``component`` of ``key`` (None: the entry
+    whose gradient is largest) against its finite difference."""
     (gradient,) = backward_gradient(description, [key])
+    if component is None:
+        component = int(np.argmax(np.abs(gradient)))
     expected = finite_difference(description, key, component, step)
     assert abs(expected) > 1e-3, "the parameter must change the image"
     assert gradient[component] == pytest.approx(expected, rel=rtol)
@@ -158,7 +164,7 @@ def check_against_differences(description, key, component, step, rtol=RTOL):
 # ------------------------------------------------ each kind of parameter
 
 CASES = {
-    # key, component, step, scene
+    # key, component (None: the entry whose gradient is largest), step, scene
     "phong diffuse texel": ("ball.bsdf.diffuse_reflectance.texture.data", None, 1e-2, gallery),
     "phong specular reflectance": ("ball.bsdf.specular_reflectance.value", 1, 1e-3, gallery),
     "phong exponent": ("right.bsdf.exponent", 0, 1e-2, open_scene),
@@ -174,11 +180,7 @@ CASES = {
 @pytest.mark.parametrize("case", sorted(CASES))
 def test_gradient_matches_finite_differences(case):
     key, component, step, make = CASES[case]
-    description = make()
-    if component is None:   # the texel whose gradient is largest
-        (gradient,) = backward_gradient(description, [key])
-        component = int(np.argmax(np.abs(gradient)))
-    check_against_differences(description, key, component, step)
+    check_against_differences(make(), key, component, step)
 
 
 def test_texel_gradient_comes_through_mirror_and_glass():
@@ -188,10 +190,7 @@ def test_texel_gradient_comes_through_mirror_and_glass():
                                  phong({"type": "sphere_map", "texture": texture()})),
                      lens=sphere((0.25, 0.1, 1.6), 0.5, glass()))
     hidden["sensor"] = camera(origin=(0.3, 0.6, 5), target=(-0.5, 0, 0), size=20)
-    key = "ball.bsdf.diffuse_reflectance.texture.data"
-    (gradient,) = backward_gradient(hidden, [key])
-    component = int(np.argmax(np.abs(gradient)))
-    check_against_differences(hidden, key, component, 1e-2)
+    check_against_differences(hidden, "ball.bsdf.diffuse_reflectance.texture.data", None, 1e-2)
 
 
 def test_textures_and_blend_match_finite_differences():
@@ -324,6 +323,20 @@ def test_forward_mode_holds_no_more_than_one_band_of_launches(monkeypatch):
     np.testing.assert_array_equal(banded, whole)
 
 
+#: Pixels per side of the gallery rendered in bands.
+BANDED_SIZE = 16
+
+
+@functools.lru_cache(maxsize=None)
+def tangent_image_in_one_band(key) -> np.ndarray:
+    """``forward_image`` of the banded tests' gallery along all of ``key``,
+    at the default band size (one band): the reference of every band count,
+    so rendered once per key; read-only, as the tests share it."""
+    image = forward_image(gallery(size=BANDED_SIZE), key)
+    image.flags.writeable = False
+    return image
+
+
 @pytest.mark.parametrize("rows", [2, 4], ids=["8-bands", "4-bands"])
 @pytest.mark.parametrize("key", ["ball.bsdf.diffuse_reflectance.texture.data",
                                  "lens.bsdf.specular_transmittance.value", "key.intensity.value"])
@@ -333,10 +346,9 @@ def test_forward_mode_in_bands_is_forward_mode_in_one(monkeypatch, key, rows):
     texture seen directly, through glass and in a mirror."""
     from mitsuba_whitted.integrators import render_plan
 
-    described = gallery(size=16)
-    whole = forward_image(described, key)
-    monkeypatch.setattr(render_plan, "BAND_SAMPLES", rows * 16)
-    banded = forward_image(described, key)
+    whole = tangent_image_in_one_band(key)   # before the band size changes
+    monkeypatch.setattr(render_plan, "BAND_SAMPLES", rows * BANDED_SIZE)
+    banded = forward_image(gallery(size=BANDED_SIZE), key)
     assert np.abs(whole).max() > 0
     np.testing.assert_array_equal(banded, whole)
 
