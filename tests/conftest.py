@@ -28,6 +28,13 @@ def assert_finite(image) -> None:
     assert np.isfinite(values).all(), f"{np.size(values) - np.isfinite(values).sum()} non-finite values"
 
 
+def read_only(image: np.ndarray) -> np.ndarray:
+    """``image``, made read-only: an image rendered once and shared by
+    several tests, none of which may change it for the others."""
+    image.flags.writeable = False
+    return image
+
+
 def address(array) -> int:
     """Where a flat LLVM array's memory is (NumPy views it without a copy)."""
     return np.from_dlpack(array).ctypes.data

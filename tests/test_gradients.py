@@ -15,6 +15,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
+from conftest import read_only
 from mitsuba_whitted.compare import equivalence_test
 from mitsuba_whitted.compare.gradients import (gradient_values, prb_gradient_batches,
                                                whitted_gradient)
@@ -331,10 +332,8 @@ BANDED_SIZE = 16
 def tangent_image_in_one_band(key) -> np.ndarray:
     """``forward_image`` of the banded tests' gallery along all of ``key``,
     at the default band size (one band): the reference of every band count,
-    so rendered once per key; read-only, as the tests share it."""
-    image = forward_image(gallery(size=BANDED_SIZE), key)
-    image.flags.writeable = False
-    return image
+    so rendered once per key."""
+    return read_only(forward_image(gallery(size=BANDED_SIZE), key))
 
 
 @pytest.mark.parametrize("rows", [2, 4], ids=["8-bands", "4-bands"])

@@ -8,6 +8,7 @@ import re
 import numpy as np
 import pytest
 
+from conftest import read_only
 from validation.stability import acne, cylinder, glass, run_stability, stability_markdown
 from validation.stability.common import SEED
 
@@ -114,11 +115,8 @@ REPORT_SIZE = 96
 @pytest.fixture(scope="module")
 def unscaled_at_report_size():
     """The scale-1 glass scene at the report's size: every scale's case
-    compares with this same image, so it is rendered once; read-only, as
-    the cases share it."""
-    image = acne.render(acne.scaled_glass_scene(1.0, REPORT_SIZE))
-    image.flags.writeable = False
-    return image
+    compares with this same image, so it is rendered once."""
+    return read_only(acne.render(acne.scaled_glass_scene(1.0, REPORT_SIZE)))
 
 
 @pytest.mark.parametrize("scale", [1e-3, 1e3])
