@@ -9,6 +9,7 @@ later, valid update through the same ``SceneParameters``."""
 
 from __future__ import annotations
 
+import functools
 import math
 from pathlib import Path
 
@@ -17,7 +18,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from conftest import assert_finite
+from conftest import assert_finite, read_only
 from mitsuba_whitted.errors import ParameterError
 from validation.scenes import camera, diffuse, floor, integrator, point_light, rgb, scene, sphere
 
@@ -83,6 +84,14 @@ def render(loaded) -> np.ndarray:
 def evaluated(value):
     """A value built here only once a variant is set (transforms)."""
     return value() if callable(value) else value
+
+
+@functools.lru_cache(maxsize=None)
+def loaded_with_valid_update(plugin) -> np.ndarray:
+    """The image of a scene loaded anew with the plugin's valid update: the
+    same for every case of the plugin, so rendered once."""
+    _, _, (good_key, good_value) = PLUGINS[plugin]
+    return read_only(render(load(plugin, **{good_key: evaluated(good_value)})))
 
 
 def snapshot(params, prefix: str) -> dict:
@@ -268,7 +277,7 @@ def test_bad_value_is_refused_and_a_refused_update_changes_nothing(plugin, param
     params.update()
     updated = render(loaded)
     assert not np.array_equal(updated, image_before)
-    np.testing.assert_array_equal(updated, render(load(plugin, **{good_key: evaluated(good_value)})))
+    np.testing.assert_array_equal(updated, loaded_with_valid_update(plugin))
 
 
 def test_a_refused_update_of_several_values_restores_them_all():
@@ -347,6 +356,17 @@ def integrator_scene(**settings):
                               whitted=integrator(**{"aa": "grid", **settings})))
 
 
+#: The valid update that follows each refused one.
+VALID_MAX_DEPTH = 2
+
+
+@functools.lru_cache(maxsize=None)
+def loaded_with_valid_max_depth() -> np.ndarray:
+    """The image of the integrator's scene loaded anew with the valid
+    update: the same for every case, so rendered once."""
+    return read_only(render(integrator_scene(max_depth=VALID_MAX_DEPTH)))
+
+
 @pytest.mark.parametrize("parameter, bad, load_bad, xml", INTEGRATOR_CASES,
                          ids=[f"{case[0]}-{case[2]}" for case in INTEGRATOR_CASES])
 def test_integrator_settings_are_checked_and_a_refused_update_changes_nothing(
@@ -373,11 +393,11 @@ def test_integrator_settings_are_checked_and_a_refused_update_changes_nothing(
     assert integrator_values(params) == values_before
     np.testing.assert_array_equal(render(loaded), image_before)
 
-    params["max_depth"] = 2
+    params["max_depth"] = VALID_MAX_DEPTH
     params.update()
     updated = render(loaded)
     assert not np.array_equal(updated, image_before)
-    np.testing.assert_array_equal(updated, render(integrator_scene(max_depth=2)))
+    np.testing.assert_array_equal(updated, loaded_with_valid_max_depth())
 
 
 def test_integrator_modes_are_shown_but_not_updated():
