@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import cli, one_line
+from conftest import cli, one_line, read_only
 from mitsuba_whitted.compare import render_reference
 from mitsuba_whitted.distributed import SceneSource
 from mitsuba_whitted.imageio import read_image
@@ -38,6 +38,8 @@ GLASS = ROOT / "scenes" / "cases" / "glass_spheres.xml"
 JOB = Path(__file__).parent / "tools" / "cluster_job.py"
 #: Seconds any command of these tests may take.
 COMMAND_SECONDS = 300
+#: The image size of the render-many tests, alone and in a batch.
+RENDER_SIZE = "res=24"
 
 
 @pytest.fixture(scope="module")
@@ -123,29 +125,42 @@ def test_ctrl_c_cancels_the_tasks_and_the_cache_stays_consistent(cluster, tmp_pa
     assert report["entries"] == ["key.npz"]
 
 
-def _render_many_matches_render(tmp_path, *options, env=None):
+@pytest.fixture(scope="module")
+def rendered_alone(tmp_path_factory):
+    """Each scene as ``render`` writes it, by name: what both render-many
+    tests compare with, so each scene is rendered once for the module."""
+    folder = tmp_path_factory.mktemp("alone")
+    images = {}
+    for scene in SCENES:
+        single = folder / f"{scene.stem}.exr"
+        assert cli("render", str(scene), "-o", str(single), "-D", RENDER_SIZE,
+                   timeout=COMMAND_SECONDS).returncode == 0
+        images[scene.stem] = read_only(read_image(single))
+    return images
+
+
+def _render_many_matches_render(tmp_path, rendered_alone, *options, env=None):
     out = tmp_path / "many"
-    result = cli("render-many", *map(str, SCENES), "--out", str(out), "-D", "res=24", *options,
+    result = cli("render-many", *map(str, SCENES), "--out", str(out), "-D", RENDER_SIZE, *options,
                  env=env, timeout=COMMAND_SECONDS)
     assert result.returncode == 0, result.stderr
     for scene in SCENES:
-        single = tmp_path / f"{scene.stem}.exr"
-        assert cli("render", str(scene), "-o", str(single), "-D", "res=24",
-                   timeout=COMMAND_SECONDS).returncode == 0
-        np.testing.assert_array_equal(read_image(out / f"{scene.stem}.exr"), read_image(single))
+        np.testing.assert_array_equal(read_image(out / f"{scene.stem}.exr"),
+                                      rendered_alone[scene.stem])
 
 
-def test_render_many_on_the_cluster_writes_what_render_writes(cluster, tmp_path):
+def test_render_many_on_the_cluster_writes_what_render_writes(cluster, rendered_alone, tmp_path):
     """Each worker registers the package's plugins (the report's scene uses
     phong, tartan, sphere_map, capped_cylinder and whitted) and rebuilds the
     scene's textures from the bytes it was sent."""
-    _render_many_matches_render(tmp_path, "--cluster", cluster.address, env=cluster.env)
+    _render_many_matches_render(tmp_path, rendered_alone, "--cluster", cluster.address,
+                                env=cluster.env)
 
 
-def test_render_many_on_a_local_ray_writes_what_render_writes(tmp_path):
+def test_render_many_on_a_local_ray_writes_what_render_writes(rendered_alone, tmp_path):
     env = dict(os.environ)
     env.pop("RAY_ADDRESS", None)
-    _render_many_matches_render(tmp_path, "--workers", "2", env=env)
+    _render_many_matches_render(tmp_path, rendered_alone, "--workers", "2", env=env)
 
 
 def test_unreachable_cluster_is_one_sentence_naming_the_address(tmp_path):
