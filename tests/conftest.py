@@ -40,10 +40,11 @@ def address(array) -> int:
     return np.from_dlpack(array).ctypes.data
 
 
-def cli(*args, env=None, check=False, timeout=600):
-    """``mitsuba-whitted *args`` in a process of its own, started in the
-    repository's root; its output as text."""
-    return subprocess.run([sys.executable, "-m", "mitsuba_whitted.cli", *args], cwd=ROOT,
+def cli(*args, env=None, check=False, timeout=600, module="mitsuba_whitted.cli"):
+    """``mitsuba-whitted *args`` (or ``python -m module *args``) in a
+    process of its own, started in the repository's root; its output as
+    text."""
+    return subprocess.run([sys.executable, "-m", module, *args], cwd=ROOT,
                           env=env, capture_output=True, text=True, check=check,
                           timeout=timeout)
 

@@ -109,6 +109,35 @@ def test_bad_input_is_one_sentence(args, message):
     assert_one_sentence(cli(*args), message)
 
 
+VALIDATION_BAD_INPUT = [
+    ("validation.run", ["--workers", "0"], "--workers must be at least 1 (got 0)"),
+    ("validation.run", ["--bogus"], "validation.run: unrecognized arguments: --bogus"),
+    ("validation.inverse_texture", ["--iterations", "0"],
+     "argument --iterations: expected a whole number of at least 1, got '0'"),
+    ("validation.inverse_texture_prb", ["--iterations", "many"],
+     "argument --iterations: expected a whole number of at least 1, got 'many'"),
+    ("validation.inverse_texture", ["--out", "{file}"], "'{file}': it is a file, not a folder"),
+    ("validation.cluster_speed", ["--res", "-3"],
+     "argument --res: expected a whole number of at least 1, got '-3'"),
+    ("validation.cluster_speed", ["--workers", "2", "0"], "argument --workers"),
+    ("validation.cluster_speed", ["--json", "{folder}"], "'{folder}': it is a folder"),
+]
+
+
+@pytest.mark.parametrize("module, args, message", VALIDATION_BAD_INPUT,
+                         ids=[" ".join([module, *args])
+                              for module, args, _ in VALIDATION_BAD_INPUT])
+def test_the_validation_commands_refuse_bad_input_in_one_sentence(tmp_path, module, args,
+                                                                 message):
+    """Before any work: the file named stays as it was."""
+    names = {"file": tmp_path / "a-file", "folder": tmp_path}
+    names["file"].write_text("kept")
+    result = cli(*[arg.format(**names) for arg in args], module=module)
+    assert_one_sentence(result, message.format(**names))
+    assert names["file"].read_text() == "kept"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a-file"]
+
+
 #: A small scene; the body of each hostile case goes at the end.
 HOSTILE = """<scene version="3.0.0">
     <integrator type="whitted"/>

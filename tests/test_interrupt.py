@@ -158,7 +158,7 @@ def test_ctrl_c_stops_validation_and_keeps_the_old_report():
 
     before = contents()
     code, seconds, output = interrupted(["-m", "validation.run"], started_after=3.0)
-    assert_stopped(code, seconds, output, program="validation")
+    assert_stopped(code, seconds, output, program="validation.run")
     assert contents() == before
     assert sorted(p.name for p in report.parent.iterdir() if p.name.startswith(".report")) == []
 

@@ -19,18 +19,18 @@ needs ``pip install 'mitsuba-whitted[cluster]'``).
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 import statistics
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
 import mitsuba_whitted
+from mitsuba_whitted.cli import CommandParser, count, run_command
 from mitsuba_whitted.compare.reference import path_settings, reference_tasks, render_reference
+from mitsuba_whitted.files import check_writable, write_text
 from mitsuba_whitted.jit import timed
 from mitsuba_whitted.system import machine
 from mitsuba_whitted.distributed import InProcess, SceneSource, run_job
@@ -156,14 +156,18 @@ def table(speed: dict, cost: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--res", type=int, default=128, help="film width and height")
-    parser.add_argument("--spp", type=int, default=1024, help="samples per pixel of the reference")
-    parser.add_argument("--workers", type=int, nargs="+", default=[1, 2, 4])
-    parser.add_argument("--rounds", type=int, default=3,
+    parser = CommandParser(prog="validation.cluster_speed",
+                           description=__doc__.splitlines()[0])
+    parser.add_argument("--res", type=count, default=128, help="film width and height")
+    parser.add_argument("--spp", type=count, default=1024,
+                        help="samples per pixel of the reference")
+    parser.add_argument("--workers", type=count, nargs="+", default=[1, 2, 4])
+    parser.add_argument("--rounds", type=count, default=3,
                         help="rounds of the speed-up; repeats of each overhead job")
     parser.add_argument("--json", help="also write the figures to this file")
     args = parser.parse_args(argv)
+    if args.json:
+        check_writable(args.json)  # before minutes of measuring, not after
     mitsuba_whitted.set_variant("llvm_ad_rgb")
     source = SceneSource(REPORT_SCENE, {"res": str(args.res)})
     source.scene = source.load()
@@ -173,9 +177,9 @@ def main(argv: list[str] | None = None) -> int:
           f"16 passes; {machine()}\n")
     print(table(speed, cost))
     if args.json:
-        Path(args.json).write_text(json.dumps({"speedup": speed, "overhead": cost}, indent=1))
+        write_text(args.json, json.dumps({"speedup": speed, "overhead": cost}, indent=1))
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_command(main, program="validation.cluster_speed"))

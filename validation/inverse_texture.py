@@ -17,7 +17,6 @@ written to ``--out``, with this run's history, so that the plot shows the
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
@@ -28,7 +27,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from mitsuba_whitted.files import write_text
+from mitsuba_whitted.cli import CommandParser, count, run_command
+from mitsuba_whitted.files import check_folder, write_text
 from mitsuba_whitted.imageio import write_image
 from validation.scenes import camera, point_light, rgb, sphere, wall
 
@@ -186,11 +186,13 @@ def plot_histories(out: Path) -> Path:
 
 
 def main(argv=None, name: str = "whitted", integrator=whitted_integrator, spp: int = 0,
-         target_spp: int = 0, learning_rate: float = 0.05) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--iterations", type=int, default=80)
+         target_spp: int = 0, learning_rate: float = 0.05,
+         program: str = "validation.inverse_texture") -> int:
+    parser = CommandParser(prog=program, description=__doc__.splitlines()[0])
+    parser.add_argument("--iterations", type=count, default=80)
     parser.add_argument("--out", type=Path, default=OUT)
     args = parser.parse_args(argv)
+    check_folder(args.out)  # before the optimisation, not after
     mitsuba_whitted.set_variant("llvm_ad_rgb")
     problem = Problem(integrator(), target_spp)
     print(f"{name}: texture error {problem.texture_error():.4f} at the start")
@@ -203,4 +205,4 @@ def main(argv=None, name: str = "whitted", integrator=whitted_integrator, spp: i
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_command(main, program="validation.inverse_texture"))

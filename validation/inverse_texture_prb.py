@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import sys
 
+from mitsuba_whitted.cli import run_command
 from validation.inverse_texture import main
 
 
@@ -18,4 +19,6 @@ def prb_integrator() -> dict:
 
 
 if __name__ == "__main__":
-    sys.exit(main(name="prb", integrator=prb_integrator, spp=16, target_spp=1024))
+    PROGRAM = "validation.inverse_texture_prb"
+    sys.exit(run_command(lambda: main(name="prb", integrator=prb_integrator, spp=16,
+                                      target_spp=1024, program=PROGRAM), program=PROGRAM))

@@ -6,7 +6,6 @@ run only re-renders Whitted and re-times the sweeps.
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from functools import partial
@@ -16,7 +15,7 @@ import mitsuba_whitted
 import mitsuba as mi
 import numpy as np
 
-from mitsuba_whitted.cli import add_cluster_options, run_command
+from mitsuba_whitted.cli import CommandParser, add_cluster_options, run_command
 from mitsuba_whitted.compare import (CompareOptions, ReferenceCache, cache_key, cached_reference,
                                      compare_scene, equivalence_test, flip_error, luminance,
                                      missing_energy_share, missing_light, noise_rel_mse,
@@ -58,7 +57,7 @@ def main(argv: list[str] | None = None) -> int:
     """Write the report into a new folder that replaces ``REPORT`` when it
     is complete: a run that fails or is interrupted leaves the old one. The
     path references' tasks run where ``--workers`` and ``--cluster`` say."""
-    parser = argparse.ArgumentParser(description="Regenerate validation/report/.")
+    parser = CommandParser(prog="validation.run", description="Regenerate validation/report/.")
     add_cluster_options(parser)
     args = parser.parse_args(argv)
     started = time.perf_counter()
@@ -450,4 +449,4 @@ def machine_section(report, cache, seconds, total) -> None:
 
 
 if __name__ == "__main__":
-    sys.exit(run_command(main, program="validation"))
+    sys.exit(run_command(main, program="validation.run"))

@@ -185,7 +185,7 @@ def add_cluster_options(parser: argparse.ArgumentParser) -> None:
 def build_parser() -> argparse.ArgumentParser:
     from . import DEFAULT_VARIANT
 
-    parser = _Parser(
+    parser = CommandParser(
         prog="mitsuba-whitted",
         description="Whitted ray tracing for Mitsuba 3 scenes.")
     commands = parser.add_subparsers(dest="command", required=True)
@@ -236,11 +236,22 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-class _Parser(argparse.ArgumentParser):
+class CommandParser(argparse.ArgumentParser):
     """Bad arguments in one line (argparse prints its usage first)."""
 
     def error(self, message):
         self.exit(2, f"{self.prog}: {message}; '{self.prog} --help' lists the options.\n")
+
+
+def count(text: str) -> int:
+    """An argument's type: a whole number of at least 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a whole number of at least 1, got '{text}'")
+    return value
 
 
 def main(argv: list[str] | None = None) -> int:
