@@ -27,10 +27,10 @@ from validation.scenes import REPORT_SCENE, ROOT
 
 
 
-def interrupted(args, started_after: float = 1.0):
-    """Run ``python args`` with stderr on a pty; SIGINT ``started_after``
-    seconds after its first output there. (exit code, seconds from the
-    signal to the exit, all it wrote on stderr)."""
+def interrupted(args, started_after: float = 1.0, signum: int = signal.SIGINT):
+    """Run ``python args`` with stderr on a pty; SIGINT (or ``signum``)
+    ``started_after`` seconds after its first output there. (exit code,
+    seconds from the signal to the exit, all it wrote on stderr)."""
     terminal, child_end = pty.openpty()
     tty.setraw(child_end)  # the bytes as written: no "\r\n" for "\n"
     process = subprocess.Popen([sys.executable, *args], stdin=subprocess.DEVNULL,
@@ -42,7 +42,7 @@ def interrupted(args, started_after: float = 1.0):
         output += _read(terminal, seconds=started_after)
         assert process.poll() is None, "the command ended before it could be interrupted"
         sent = time.monotonic()
-        process.send_signal(signal.SIGINT)
+        process.send_signal(signum)
         code = process.wait(timeout=60)
         seconds = time.monotonic() - sent
         output += _read(terminal, seconds=0.5)
@@ -74,10 +74,11 @@ def last_line(output: str) -> str:
     return output.rstrip("\n").split("\n")[-1].split("\r")[-1]
 
 
-def assert_stopped(code, seconds, output, program="mitsuba-whitted"):
-    assert code == 130, output
-    assert seconds < 2, f"{seconds:.2f} s from Ctrl-C to the end"
-    assert last_line(output) == f"{program}: interrupted."
+def assert_stopped(code, seconds, output, program="mitsuba-whitted", signum=signal.SIGINT):
+    assert code == 128 + signum, output
+    assert seconds < 2, f"{seconds:.2f} s from the signal to the end"
+    said = {signal.SIGINT: "interrupted", signal.SIGTERM: "terminated"}[signum]
+    assert last_line(output) == f"{program}: {said}."
     assert "Traceback" not in output and "leak" not in output, output
 
 
@@ -111,6 +112,20 @@ def test_ctrl_c_stops_a_render(tmp_path, samples_scene, defines):
     assert_stopped(code, seconds, output)
     assert output.count("\n") == 1, output
     assert not out.exists()
+
+
+def test_kill_stops_a_render_as_ctrl_c_does(tmp_path, samples_scene):
+    """SIGTERM, as ``kill`` and job schedulers send it: exit code 143, one
+    line, the user's old image as it was and no temporary beside it."""
+    target = tmp_path / "x.png"
+    target.write_bytes(b"the user's image")
+    code, seconds, output = interrupted(
+        ["-m", "mitsuba_whitted.cli", "render", str(samples_scene), "-o", str(target),
+         "-D", "res=3000", "-D", "aa=none"], signum=signal.SIGTERM)
+    assert_stopped(code, seconds, output, signum=signal.SIGTERM)
+    assert output.count("\n") == 1, output
+    assert target.read_bytes() == b"the user's image"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.xml", "x.png"]
 
 
 @pytest.mark.parametrize("after", [0.15, 0.4])

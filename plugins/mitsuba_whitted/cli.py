@@ -267,10 +267,11 @@ def erase_line(stream) -> str:
 def run_command(function, *args, program: str = "mitsuba-whitted") -> int:
     """``function(*args)`` as a command: its warnings on stderr in plain
     lines, any error as one sentence (exit code 2), Ctrl-C as one line and
-    exit code 130 (see :mod:`.interrupt`), no partial file either way."""
-    def last_words():
+    exit code 130 (143 for SIGTERM; see :mod:`.interrupt`), no partial file
+    either way."""
+    def last_words(signum):
         files.discard_pending()
-        sys.stderr.write(erase_line(sys.stderr) + interrupted_line(program))
+        sys.stderr.write(erase_line(sys.stderr) + interrupted_line(program, signum))
 
     with InterruptGuard(last_words) as guard, plain_warnings():
         try:

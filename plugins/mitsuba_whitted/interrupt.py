@@ -1,5 +1,6 @@
-"""Ctrl-C on the command line: the process stops within about a second,
-says so in one line, exits with 130 and leaves no partial file.
+"""Ctrl-C (or a plain ``kill``) on the command line: the process stops
+within about a second, says so in one line, exits with 130 (143 for
+SIGTERM) and leaves no partial file.
 
 Python raises ``KeyboardInterrupt`` only when its main thread runs Python
 code, and a Dr.Jit launch, an LLVM compilation or a render of Mitsuba's
@@ -22,39 +23,50 @@ import sys
 import threading
 import time
 
-#: What shells report for a process stopped by SIGINT (128 + 2).
-EXIT_CODE = 128 + signal.SIGINT
+#: The signals that stop a command, and what it says when one does.
+STOPPING = {signal.SIGINT: "interrupted", signal.SIGTERM: "terminated"}
 #: Seconds the main thread has to unwind before the watcher ends the process.
 GRACE = 0.5
 
 
+def exit_code(signum: int) -> int:
+    """What shells report for a process that a signal stopped."""
+    return 128 + signum
+
+
 class InterruptGuard:
-    """While active, SIGINT raises ``KeyboardInterrupt`` once in the main
-    thread and ends the process (:meth:`stop`) at the latest :data:`GRACE`
-    seconds later. ``last_words()`` removes what a stopped process must not
-    leave behind and says that it stopped."""
+    """While active, SIGINT or SIGTERM raises ``KeyboardInterrupt`` once in
+    the main thread and ends the process (:meth:`stop`) at the latest
+    :data:`GRACE` seconds later. ``last_words(signum)`` removes what a
+    stopped process must not leave behind and says that it stopped."""
 
     def __init__(self, last_words):
         self.last_words = last_words
         self.requested = threading.Event()
+        #: The signal that stopped the command (Ctrl-C's, for a
+        #: ``KeyboardInterrupt`` that came from elsewhere).
+        self.received = signal.SIGINT
         self._stopping = threading.Lock()
 
     def __enter__(self) -> "InterruptGuard":
         self._read, self._write = os.pipe()
         os.set_blocking(self._write, False)
         self._previous_fd = signal.set_wakeup_fd(self._write, warn_on_full_buffer=False)
-        self._previous_handler = signal.signal(signal.SIGINT, self._raise_once)
+        self._previous_handlers = {signum: signal.signal(signum, self._raise_once)
+                                   for signum in STOPPING}
         threading.Thread(target=self._watch, name="interrupt watcher", daemon=True).start()
         return self
 
     def __exit__(self, *exc) -> None:
-        signal.signal(signal.SIGINT, self._previous_handler)
+        for signum, handler in self._previous_handlers.items():
+            signal.signal(signum, handler)
         signal.set_wakeup_fd(self._previous_fd)
         os.close(self._write)  # the watcher reads the end of the pipe and returns
 
     def _raise_once(self, signum, frame) -> None:
-        # A second Ctrl-C must not break off the clean-up the first started.
+        # A second signal must not break off the clean-up the first started.
         if not self.requested.is_set():
+            self.received = signum
             self.requested.set()
             raise KeyboardInterrupt
 
@@ -64,21 +76,21 @@ class InterruptGuard:
                 signals = os.read(self._read, 64)
                 if not signals:
                     return
-                if signal.SIGINT in signals:
+                if any(signum in signals for signum in STOPPING):
                     time.sleep(GRACE)
                     self.stop()
         finally:
             os.close(self._read)
 
     def stop(self) -> None:
-        """``last_words()``, then end the process with :data:`EXIT_CODE`.
-        Called from both threads; the first call ends the process and the
-        second waits for that."""
+        """``last_words(signum)``, then end the process with the signal's
+        exit code. Called from both threads; the first call ends the
+        process and the second waits for that."""
         with self._stopping:
-            self.last_words()
+            self.last_words(self.received)
             sys.stdout.flush()
             sys.stderr.flush()
-            os._exit(EXIT_CODE)
+            os._exit(exit_code(self.received))
 
 
 def started_as(module: str, script: str) -> bool:
@@ -89,9 +101,10 @@ def started_as(module: str, script: str) -> bool:
             or (module in argv and argv[argv.index(module) - 1] == "-m"))
 
 
-def interrupted_line(program: str) -> str:
-    """What a command says, and all it says, when Ctrl-C ends it."""
-    return f"{program}: interrupted.\n"
+def interrupted_line(program: str, signum: int = signal.SIGINT) -> str:
+    """What a command says, and all it says, when Ctrl-C (or ``signum``)
+    ends it."""
+    return f"{program}: {STOPPING[signum]}.\n"
 
 
 def end_quietly_on_ctrl_c(program: str) -> None:
@@ -101,6 +114,6 @@ def end_quietly_on_ctrl_c(program: str) -> None:
     ends in a traceback (or in a half-imported module's ``NameError``)."""
     def end(signum, frame):
         os.write(2, interrupted_line(program).encode())
-        os._exit(EXIT_CODE)
+        os._exit(exit_code(signal.SIGINT))
 
     signal.signal(signal.SIGINT, end)
