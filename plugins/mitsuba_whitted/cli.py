@@ -69,7 +69,8 @@ def command_render(args) -> int:
     seconds = rendered - loaded
     stats = getattr(integrator, "last_stats", {})
     rays = stats.get("total")
-    ray_text = f", {rays / 1e6:.2f} M rays, {rays / seconds / 1e6:.1f} M rays/s" if rays else ""
+    ray_text = (f", {rays / 1e6:.2f} M rays" if rays >= 10_000 else f", {rays:,} rays") \
+        + f", {rays / seconds / 1e6:.3g} M rays/s" if rays else ""
     print(f"{args.output}: {width}x{height} rendered and written in {seconds:.3f} s{ray_text} "
           f"(scene loaded in {loaded - started:.2f} s)")
     return 0
