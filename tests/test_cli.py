@@ -8,11 +8,12 @@ import sys
 import drjit as dr
 import mitsuba as mi
 import numpy as np
+import OpenImageIO
 import pytest
 
 from conftest import cli, one_line
 from mitsuba_whitted.cli import main, run_command
-from mitsuba_whitted.imageio import read_image, to_8bit
+from mitsuba_whitted.imageio import read_image, to_8bit, write_image
 from validation.scenes import REPORT_SCENE, ROOT
 
 
@@ -69,6 +70,113 @@ def test_png_is_the_srgb_encoding_of_the_exr(tmp_path):
     linear = read_image(tmp_path / "a.exr")
     encoded = np.round(read_image(tmp_path / "a.png") * 255)
     np.testing.assert_array_equal(encoded, to_8bit(linear))
+
+
+#: A pixel's associated colour (RGB, or its first value as luminance) and
+#: alpha: half covered, so its unassociated colour is twice this.
+COLOUR, ALPHA = np.array([0.1, 0.25, 0.4]), 0.5
+
+
+def srgb_8bit(linear):
+    """IEC 61966-2-1's transfer curve, in 8 bits."""
+    linear = np.asarray(linear, dtype=np.float64)
+    return np.round(255 * np.where(linear <= 0.0031308, 12.92 * linear,
+                                   1.055 * linear ** (1 / 2.4) - 0.055))
+
+
+def read_stored(path):
+    """The values a file stores, as they are: alpha not associated by the
+    reader, PFM's rows (bottom to top) read here, since OpenImageIO's
+    reader leaves them upside down."""
+    if path.suffix == ".pfm":
+        header, width_height, scale, data = path.read_bytes().split(b"\n", 3)
+        width, height = map(int, width_height.split())
+        channels = 3 if header == b"PF" else 1
+        values = np.frombuffer(data, "<f4" if float(scale) < 0 else ">f4")
+        return values.reshape(height, width, channels)[::-1]
+    config = OpenImageIO.ImageSpec()
+    config.attribute("oiio:UnassociatedAlpha", 1)
+    image = OpenImageIO.ImageInput.open(str(path), config)
+    try:
+        return image.read_image(OpenImageIO.UINT8 if path.suffix in (".png", ".jpg")
+                                else OpenImageIO.FLOAT)
+    finally:
+        image.close()
+
+
+@pytest.mark.parametrize("channels", [1, 2, 3, 4], ids=["Y", "YA", "RGB", "RGBA"])
+@pytest.mark.parametrize("suffix", [".png", ".jpg", ".exr", ".hdr", ".pfm"])
+def test_every_format_stores_what_it_can_of_every_layout(tmp_path, suffix, channels):
+    """PNG: sRGB colour unassociated from a linear alpha; EXR: as it is;
+    JPEG, HDR, PFM (no alpha): the colour alone, the image over black; HDR
+    (RGB only): luminance three times. Written whatever the layout, so no
+    render is lost to a format at the end."""
+    colour = COLOUR[:1 if channels <= 2 else 3]
+    alpha = [ALPHA] if channels in (2, 4) else []
+    image = np.tile(np.r_[colour, alpha], (8, 8, 1)).astype(np.float32)
+    write_image(tmp_path / f"a{suffix}", image)
+    if suffix == ".hdr":
+        colour = np.resize(colour, 3)
+    expected = {".png": np.r_[srgb_8bit(colour / (alpha[0] if alpha else 1)),
+                              np.round(255 * np.array(alpha))],
+                ".jpg": srgb_8bit(colour), ".exr": np.r_[colour, alpha]}.get(suffix, colour)
+    stored = read_stored(tmp_path / f"a{suffix}")
+    assert stored.shape == (8, 8, len(expected))
+    # RGBE keeps 8 bits of mantissa; JPEG's transform rounds a flat block
+    # to within a level.
+    tolerance = {".hdr": 2 ** -8 * np.max(colour), ".jpg": 1}.get(suffix, 1e-7)
+    np.testing.assert_allclose(stored, np.broadcast_to(expected, stored.shape), atol=tolerance)
+
+
+def test_a_png_keeps_the_colour_of_a_pixel_without_alpha(tmp_path):
+    """Nothing to divide by: an environment seen where nothing was hit."""
+    write_image(tmp_path / "a.png", np.array([[[0.25, 0.5, 1.0, 0.0]]], np.float32))
+    np.testing.assert_array_equal(read_stored(tmp_path / "a.png")[0, 0],
+                                  np.r_[srgb_8bit([0.25, 0.5, 1.0]), 0])
+
+
+#: RGB to CIE XYZ for the sRGB primaries and D65 white (IEC 61966-2-1, to
+#: six digits, as Mitsuba's colour conversion takes it); its middle row is
+#: luminance.
+SRGB_TO_XYZ = np.array([[0.412453, 0.357580, 0.180423],
+                        [0.212671, 0.715160, 0.072169],
+                        [0.019334, 0.119193, 0.950227]])
+GLASS = ROOT / "scenes" / "cases" / "glass_spheres.xml"
+
+
+def with_pixel_format(folder, pixel_format: str):
+    scene = folder / f"{pixel_format}.xml"
+    scene.write_text(GLASS.read_text().replace(
+        '<film type="hdrfilm">',
+        f'<film type="hdrfilm"><string name="pixel_format" value="{pixel_format}"/>'))
+    return scene
+
+
+@pytest.mark.parametrize("pixel_format",
+                         ["rgb", "rgba", "luminance", "luminance_alpha", "xyz", "xyza"])
+def test_a_film_gets_its_pixel_format(tmp_path, pixel_format):
+    """From the command line, which streams bands without a film, and from
+    mi.render, which develops one: luminance and XYZ are the RGB image
+    through the sRGB matrix, alpha as it is."""
+    rgba = tmp_path / "rgba.exr"
+    out = tmp_path / f"{pixel_format}.exr"
+    for scene, image in ((with_pixel_format(tmp_path, "rgba"), rgba),
+                         (with_pixel_format(tmp_path, pixel_format), out)):
+        cli("render", str(scene), "-o", str(image), "-D", "res=24", check=True)
+    colour, alpha = read_image(rgba)[..., :3].astype(np.float64), read_image(rgba)[..., 3:]
+    without_alpha = {"rgba": "rgb", "luminance_alpha": "luminance", "xyza": "xyz"}.get(
+        pixel_format, pixel_format)
+    matrix = {"rgb": np.eye(3), "luminance": SRGB_TO_XYZ[1:2], "xyz": SRGB_TO_XYZ}[without_alpha]
+    expected = colour @ matrix.T
+    if without_alpha != pixel_format:
+        expected = np.concatenate([expected, alpha], axis=2)
+    written = read_image(out)
+    np.testing.assert_allclose(written, expected, rtol=1e-6, atol=1e-7)
+
+    import mitsuba_whitted
+
+    developed = mi.render(mitsuba_whitted.load_file(tmp_path / f"{pixel_format}.xml", res="24"))
+    np.testing.assert_allclose(np.array(developed), written, rtol=1e-6, atol=1e-7)
 
 
 def test_info_names_variant_llvm_and_plugins():

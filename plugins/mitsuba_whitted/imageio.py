@@ -2,6 +2,13 @@
 
 Low dynamic range formats (PNG, JPEG) get the sRGB transfer curve and 8 bits;
 high dynamic range formats (EXR, HDR, PFM) keep linear float32 values.
+
+An image is luminance or RGB, then perhaps alpha, with its colour associated
+with alpha, as a film develops it (a pixel half covered holds half its
+colour). PNG and EXR keep alpha, PNG with the colour unassociated from it as
+its specification asks; JPEG, HDR and PFM have no alpha and store the colour
+alone, which is the image over black; HDR stores RGB only, so luminance is
+repeated in its three channels.
 """
 
 from __future__ import annotations
@@ -16,6 +23,8 @@ from .files import WriteError, cannot_write, check_writable, write_atomically
 
 HDR_SUFFIXES = {".exr", ".hdr", ".pfm"}
 LDR_SUFFIXES = {".png", ".jpg", ".jpeg"}
+ALPHA_SUFFIXES = {".png", ".exr"}
+RGB_ONLY_SUFFIXES = {".hdr"}
 
 
 class ImageWriteError(WriteError):
@@ -71,23 +80,46 @@ def write_pixels(path: str | Path, pixels: np.ndarray) -> None:
 
 
 def stored_pixels(path: Path, image: np.ndarray) -> np.ndarray:
-    """Linear pixels as the format of ``path`` stores them: 8-bit sRGB
-    (alpha linear) for PNG and JPEG, float32 otherwise."""
+    """Linear pixels (height, width, channels) as the format of ``path``
+    stores them (see the module's docstring): 8-bit sRGB with linear alpha
+    for PNG and JPEG, float32 otherwise."""
     image = np.ascontiguousarray(image, dtype=np.float32)
-    if path.suffix.lower() not in LDR_SUFFIXES:
-        return image
-    colour = to_8bit(image[..., :3])
-    if image.shape[2] == 4:  # alpha stays linear
-        alpha = np.round(np.clip(image[..., 3:], 0, 1) * 255).astype(np.uint8)
-        colour = np.concatenate([colour, alpha], axis=2)
-    return colour
+    suffix = path.suffix.lower()
+    colours, alphas = _layout(image.shape[2])
+    colour, alpha = image[..., :colours], image[..., colours:]
+    if suffix in RGB_ONLY_SUFFIXES:
+        colour = np.repeat(colour, 3 // colours, axis=2)
+    keeps_alpha = alphas and suffix in ALPHA_SUFFIXES
+    if suffix not in LDR_SUFFIXES:
+        return np.concatenate([colour, alpha], axis=2) if keeps_alpha \
+            else np.ascontiguousarray(colour)
+    if not keeps_alpha:
+        return to_8bit(colour)
+    alpha = np.clip(alpha, 0, 1)
+    straight = np.divide(colour, alpha, out=colour.copy(), where=alpha > 0)
+    return np.concatenate([to_8bit(straight), np.round(alpha * 255).astype(np.uint8)], axis=2)
+
+
+def stored_channels(path: str | Path, channels: int) -> int:
+    """How many channels an image of ``channels`` has in the format of
+    ``path``."""
+    suffix = Path(path).suffix.lower()
+    colours, alphas = _layout(channels)
+    return (3 if suffix in RGB_ONLY_SUFFIXES else colours) \
+        + (alphas if suffix in ALPHA_SUFFIXES else 0)
+
+
+def _layout(channels: int) -> tuple[int, int]:
+    """Colour channels (luminance or RGB) and alpha channels (0 or 1) of
+    an image of ``channels``."""
+    return (1 if channels <= 2 else 3), (1 if channels in (2, 4) else 0)
 
 
 def stored_bytes(path: str | Path, width: int, height: int, channels: int) -> int:
     """How many bytes the pixels of such an image take as the format of
     ``path`` stores them (before compression)."""
     per_value = 1 if Path(path).suffix.lower() in LDR_SUFFIXES else 4
-    return width * height * channels * per_value
+    return width * height * stored_channels(path, channels) * per_value
 
 
 def write_rows(path: str | Path, width: int, height: int, channels: int, render) -> None:
@@ -101,7 +133,7 @@ def write_rows(path: str | Path, width: int, height: int, channels: int, render)
 
     def put(first_row: int, rows: np.ndarray) -> None:
         if not encoders:
-            encoders.append(_Encoder(path, width, height, channels))
+            encoders.append(_Encoder(path, width, height, stored_channels(path, channels)))
         encoders[0].check(encoders[0].out.write_scanlines(
             first_row, first_row + len(rows), 0, stored_pixels(path, rows)), "write_scanlines")
 
@@ -132,11 +164,9 @@ class _Encoder:
         if self.out is None:
             raise cannot_write(path, f"OpenImageIO has no writer for it "
                                      f"({_oiio_reason(None, oiio)})")
-        # The pixels' type as stored_pixels makes them for this format.
-        kind = oiio.UINT8 if path.suffix.lower() in LDR_SUFFIXES else oiio.FLOAT
         self.memory = os.memfd_create("mitsuba-whitted-image")
         self.check(self.out.open(f"/proc/self/fd/{self.memory}",
-                                 oiio.ImageSpec(width, height, channels, kind)), "open")
+                                 _spec(oiio, path, width, height, channels)), "open")
 
     def __enter__(self) -> "_Encoder":
         return self
@@ -161,6 +191,23 @@ class _Encoder:
         self.check(self.out.close(), "close")
         with open(self.memory, "rb", closefd=False) as encoded:
             write_atomically(self.path, lambda file: shutil.copyfileobj(encoded, file, 1 << 24))
+
+
+def _spec(oiio, path: Path, width: int, height: int, channels: int):
+    """What OpenImageIO is told of the pixels :func:`stored_pixels` makes
+    for ``path``: their type, their channels (luminance or RGB, then
+    perhaps alpha), and for PNG that their colour is already unassociated
+    from alpha, which OpenImageIO would otherwise divide by alpha once
+    more, after the sRGB curve."""
+    ldr = path.suffix.lower() in LDR_SUFFIXES
+    spec = oiio.ImageSpec(width, height, channels, oiio.UINT8 if ldr else oiio.FLOAT)
+    colours, alphas = _layout(channels)
+    if colours == 1:
+        spec.channelnames = ("Y", "A")[:channels]
+    spec.alpha_channel = channels - 1 if alphas else -1
+    if ldr:
+        spec.attribute("oiio:UnassociatedAlpha", 1)
+    return spec
 
 
 def _oiio_reason(out, oiio) -> str:

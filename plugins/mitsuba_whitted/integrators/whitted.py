@@ -1,6 +1,7 @@
 from __future__ import annotations
 
 import dataclasses
+import re
 
 import drjit as dr
 import mitsuba as mi
@@ -471,17 +472,20 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         """Render without a film of the whole image: ``take(first_row,
         rows)`` receives the image band by band, top to bottom, as float32
         NumPy arrays (rows, width, channels) holding what the film's
-        ``develop`` would (RGB, or RGBA for an RGBA film), so that images
+        ``develop`` would (in its pixel format: RGB, luminance or XYZ, with
+        or without alpha), so that images
         larger than memory reach a file one band at a time. ``held_bytes``:
         what ``take`` keeps meanwhile, for the memory check."""
         sensor = _sensor(scene, sensor)
         seed = seed_value(seed)
         channels = _film_channels(sensor.film())
+        developed = _developed_format(sensor.film())
 
         def take_band(band, radiance, alpha):
             values = [radiance.x, radiance.y, radiance.z] + ([alpha] if channels == 5 else [])
             rows = np.stack([value.numpy() for value in values], axis=-1)
-            take(band.first_row, rows.reshape(band.rows, band.width, channels - 1))
+            take(band.first_row, _developed(rows.reshape(band.rows, band.width, channels - 1),
+                                            developed))
 
         self.render_bands(scene, sensor, seed, take_band, film_entries=0, held_bytes=held_bytes)
 
@@ -812,16 +816,29 @@ def _require_supported_variant():
 
 
 def _film_channels(film: mi.Film) -> int:
-    """Values per pixel of the film's storage: RGB or RGBA, and a weight."""
+    """Values per pixel of the film's storage: RGB or RGBA, and a weight
+    (whatever the pixel format it develops to: luminance and XYZ are
+    developed from RGB)."""
     width, height = film.crop_size()
     check(width * height > 0, PLUGIN_NAME, "film",
           f"has no pixels to render ({width} x {height}): give it a 'width' and 'height' of "
           "at least 1")
-    channels = film.base_channels_count() + 1
-    if channels not in (4, 5):
+    if film.flags() & mi.FilmFlags.Spectral:
         raise ParameterError(PLUGIN_NAME, "film",
-                             f"must be an RGB(A) film such as 'hdrfilm' (got {film.class_name()})")
-    return channels
+                             f"must be an RGB film such as 'hdrfilm' (got {film.class_name()}, "
+                             "which stores spectral bands)")
+    return 5 if film.flags() & mi.FilmFlags.Alpha else 4
+
+
+def _developed_format(film: mi.Film):
+    """The ``mi.Bitmap.PixelFormat`` the film develops to (an hdrfilm's
+    ``pixel_format``); RGB(A) for a film that does not say. Mitsuba's
+    films name it only in their description."""
+    stated = re.search(r"pixel_format = (\w+)", str(film))
+    formats = mi.Bitmap.PixelFormat.__members__
+    if stated is not None and stated.group(1).upper() in formats:
+        return formats[stated.group(1).upper()]
+    return formats["RGBA" if film.flags() & mi.FilmFlags.Alpha else "RGB"]
 
 
 def _film_entries(film: mi.Film, channels: int, develop: bool = True) -> int:
@@ -842,6 +859,17 @@ def _settle_sampler(sensor: mi.Sensor) -> None:
     sampler = sensor.sampler()
     if sampler is not None:
         sampler.seed(0, 1)
+
+
+def _developed(rows: np.ndarray, pixel_format) -> np.ndarray:
+    """RGB(A) ``rows`` (rows, width, 3 or 4) in ``pixel_format``, converted
+    as a film's ``develop`` converts them."""
+    stored = mi.Bitmap.PixelFormat.RGBA if rows.shape[2] == 4 else mi.Bitmap.PixelFormat.RGB
+    if pixel_format == stored:
+        return rows
+    converted = np.array(mi.Bitmap(rows, stored).convert(pixel_format, mi.Struct.Type.Float32,
+                                                         False))
+    return converted.reshape(rows.shape[0], rows.shape[1], -1)
 
 
 def _image_block(film: mi.Film, band, radiance: mi.Color3f, alpha: mi.Float,
