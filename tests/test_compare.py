@@ -192,6 +192,9 @@ def _scene_file(tmp_path, body):
     (None, "scene file 'missing.xml' does not exist"),
     ('<shape type="sphere"/>', "has no sensor, so there is no image to compare"),
     ('<integrator type="nosuch"/><sensor type="perspective"/>', 'Plugin "nosuch" not found'),
+    ('<sensor type="perspective"><film type="hdrfilm"><string name="pixel_format" '
+     'value="luminance"/></film></sensor>',
+     "develops to Y, and compare measures RGB images; give it a pixel_format of 'rgb'"),
 ])
 def test_bad_input_to_compare_is_one_sentence(tmp_path, body, message):
     scene = "missing.xml" if body is None else _scene_file(tmp_path, body)

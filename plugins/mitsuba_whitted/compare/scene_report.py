@@ -17,6 +17,7 @@ import numpy as np
 from .. import load_file
 from ..distributed import SceneSource
 from ..files import check_readable, write_text
+from ..film_format import developed_format, develops_to_rgb
 from ..system import machine
 from .cache import ReferenceCache, cache_key
 from .metrics import missing_energy_share, missing_light, noise_rel_mse, rel_squared_error
@@ -66,6 +67,11 @@ def load_scene(path: str | Path, defines: dict | None = None) -> mi.Scene:
     if not scene.sensors():
         raise CompareError(f"mitsuba-whitted: scene '{path}' has no sensor, "
                            f"so there is no image to compare.")
+    film = scene.sensors()[0].film()
+    if not develops_to_rgb(film):
+        raise CompareError(f"mitsuba-whitted: the film of scene '{path}' develops to "
+                           f"{developed_format(film).name}, and compare measures RGB images; "
+                           "give it a pixel_format of 'rgb' or 'rgba'.")
     return scene
 
 

@@ -1,7 +1,6 @@
 from __future__ import annotations
 
 import dataclasses
-import re
 
 import drjit as dr
 import mitsuba as mi
@@ -9,6 +8,7 @@ import numpy as np
 
 from ..jit import in_launches, to_int
 from ..errors import ParameterError, VariantError, check, check_choice
+from ..film_format import developed_format
 from ..parameters import LastValid, checked_numbers, describe
 from . import antialias, gradients, render_plan
 from .render_plan import Demand, RenderPlan, plan_render
@@ -479,7 +479,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         sensor = _sensor(scene, sensor)
         seed = seed_value(seed)
         channels = _film_channels(sensor.film())
-        developed = _developed_format(sensor.film())
+        developed = developed_format(sensor.film())
 
         def take_band(band, radiance, alpha):
             values = [radiance.x, radiance.y, radiance.z] + ([alpha] if channels == 5 else [])
@@ -828,17 +828,6 @@ def _film_channels(film: mi.Film) -> int:
                              f"must be an RGB film such as 'hdrfilm' (got {film.class_name()}, "
                              "which stores spectral bands)")
     return 5 if film.flags() & mi.FilmFlags.Alpha else 4
-
-
-def _developed_format(film: mi.Film):
-    """The ``mi.Bitmap.PixelFormat`` the film develops to (an hdrfilm's
-    ``pixel_format``); RGB(A) for a film that does not say. Mitsuba's
-    films name it only in their description."""
-    stated = re.search(r"pixel_format = (\w+)", str(film))
-    formats = mi.Bitmap.PixelFormat.__members__
-    if stated is not None and stated.group(1).upper() in formats:
-        return formats[stated.group(1).upper()]
-    return formats["RGBA" if film.flags() & mi.FilmFlags.Alpha else "RGB"]
 
 
 def _film_entries(film: mi.Film, channels: int, develop: bool = True) -> int:
