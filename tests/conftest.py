@@ -22,6 +22,14 @@ def variant():
     return VARIANT
 
 
+#: RGB to CIE XYZ for the sRGB primaries and D65 white (IEC 61966-2-1, to
+#: six digits, as Mitsuba's colour conversion takes it); its middle row is
+#: luminance.
+SRGB_TO_XYZ = np.array([[0.412453, 0.357580, 0.180423],
+                        [0.212671, 0.715160, 0.072169],
+                        [0.019334, 0.119193, 0.950227]])
+
+
 def assert_finite(image) -> None:
     """Every rendered image of the suite must be free of NaN and Inf."""
     values = image.numpy() if hasattr(image, "numpy") else image

@@ -11,7 +11,7 @@ import numpy as np
 import OpenImageIO
 import pytest
 
-from conftest import cli, one_line
+from conftest import SRGB_TO_XYZ, cli, one_line
 from mitsuba_whitted.cli import main, run_command
 from mitsuba_whitted.imageio import read_image, to_8bit, write_image
 from validation.scenes import REPORT_SCENE, ROOT
@@ -135,12 +135,6 @@ def test_a_png_keeps_the_colour_of_a_pixel_without_alpha(tmp_path):
                                   np.r_[srgb_8bit([0.25, 0.5, 1.0]), 0])
 
 
-#: RGB to CIE XYZ for the sRGB primaries and D65 white (IEC 61966-2-1, to
-#: six digits, as Mitsuba's colour conversion takes it); its middle row is
-#: luminance.
-SRGB_TO_XYZ = np.array([[0.412453, 0.357580, 0.180423],
-                        [0.212671, 0.715160, 0.072169],
-                        [0.019334, 0.119193, 0.950227]])
 GLASS = ROOT / "scenes" / "cases" / "glass_spheres.xml"
 
 

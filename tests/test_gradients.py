@@ -15,7 +15,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from conftest import read_only
+from conftest import SRGB_TO_XYZ, read_only
 from mitsuba_whitted.compare import equivalence_test
 from mitsuba_whitted.compare.gradients import (gradient_values, prb_gradient_batches,
                                                whitted_gradient)
@@ -350,6 +350,37 @@ def test_forward_mode_in_bands_is_forward_mode_in_one(monkeypatch, key, rows):
     banded = forward_image(gallery(size=BANDED_SIZE), key)
     assert np.abs(whole).max() > 0
     np.testing.assert_array_equal(banded, whole)
+
+
+@pytest.mark.parametrize("pixel_format", ["luminance", "xyza"])
+def test_a_film_of_another_pixel_format_differentiates_its_own_image(pixel_format):
+    """Luminance and XYZ are linear in RGB (the sRGB-to-XYZ matrix): the
+    tangent image is the RGB one through the matrix, alpha has none, and
+    the gradient of the developed channels' sum is that of the RGB image
+    weighed by the matrix's column sums."""
+    key = "lens.bsdf.specular_transmittance.value"
+    matrix = SRGB_TO_XYZ[1:2] if pixel_format == "luminance" else SRGB_TO_XYZ
+    described = gallery(size=12)
+    other = gallery(size=12)
+    other["sensor"]["film"]["pixel_format"] = pixel_format
+
+    tangent = forward_image(other, key)
+    expected = forward_image(described, key).astype(np.float64) @ matrix.T
+    np.testing.assert_allclose(tangent[..., :len(matrix)], expected, rtol=1e-5, atol=1e-7)
+    assert not tangent[..., len(matrix):].any()
+
+    def gradient(description, weights):
+        loaded = mi.load_dict(description)
+        params = mi.traverse(loaded)
+        dr.enable_grad(params[key])
+        params.update()
+        image = mi.render(loaded, params)
+        dr.backward(sum(float(w) * dr.sum(image[..., c], axis=None)
+                        for c, w in enumerate(weights)))
+        return _flat(dr.grad(params[key]))
+
+    np.testing.assert_allclose(gradient(other, np.ones(len(matrix))),
+                               gradient(described, matrix.sum(axis=0)), rtol=1e-5)
 
 
 DETERMINISM_KEYS = ["ball.bsdf.diffuse_reflectance.texture.data",

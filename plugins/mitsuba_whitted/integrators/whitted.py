@@ -745,23 +745,45 @@ def _differential_seed(seed: int) -> int:
 
 def _adjoint_pixels(grad_in, film: mi.Film):
     """``adjoint(band)``: the radiance adjoints of ``band``'s pixels, from
-    ``grad_in``, an adjoint of the film's developed image (its alpha, a
-    coverage, has no derivative)."""
+    ``grad_in``, an adjoint of the film's developed image in its pixel
+    format (its alpha, a coverage, has no derivative): luminance and XYZ
+    are linear in RGB, so their adjoints reach RGB through the transpose."""
     width, height = film.crop_size()
-    channels = _film_channels(film) - 1
+    channels = film.base_channels_count()
     shape = tuple(grad_in.shape)
     if shape != (height, width, channels):
         raise ParameterError(PLUGIN_NAME, "grad_in",
                              f"must have the shape of the image, {(height, width, channels)} "
                              f"(got {shape})")
     values = dr.detach(grad_in.array)
+    matrix = _colour_matrix(developed_format(film))
 
     def adjoint(band) -> mi.Color3f:
         base = (dr.arange(mi.UInt32, band.pixels) + dr.opaque(mi.UInt32, band.first_pixel)) \
             * channels
-        return mi.Color3f(*[dr.gather(mi.Float, values, base + c) for c in range(3)])
+        developed = [dr.gather(mi.Float, values, base + k) for k in range(len(matrix))]
+        if matrix is IDENTITY:
+            return mi.Color3f(*developed)
+        return mi.Color3f(*[sum(row[c] * value for row, value in zip(matrix, developed))
+                            for c in range(3)])
 
     return adjoint
+
+
+#: The colour matrix of an RGB film.
+IDENTITY = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+
+
+def _colour_matrix(pixel_format) -> tuple:
+    """Rows of the linear map from RGB to the colour channels of
+    ``pixel_format`` (one row for luminance, three for RGB and XYZ), as
+    the film's develop applies it."""
+    colour = pixel_format.name.removesuffix("A")  # the colour channels, without alpha
+    if colour == "RGB":
+        return IDENTITY
+    unit = np.eye(3, dtype=np.float32).reshape(1, 3, 3)  # pure red, green and blue pixels
+    converted = _developed(unit, mi.Bitmap.PixelFormat.__members__[colour])[0]
+    return tuple(tuple(float(v) for v in converted[:, k]) for k in range(converted.shape[1]))
 
 
 def _sensor(scene: mi.Scene, sensor) -> mi.Sensor:
