@@ -27,14 +27,14 @@ from validation.scenes import REPORT_SCENE, ROOT
 
 
 
-def interrupted(args, started_after: float = 1.0, signum: int = signal.SIGINT):
+def interrupted(args, started_after: float = 1.0, signum: int = signal.SIGINT, env=None):
     """Run ``python args`` with stderr on a pty; SIGINT (or ``signum``)
     ``started_after`` seconds after its first output there. (exit code,
     seconds from the signal to the exit, all it wrote on stderr)."""
     terminal, child_end = pty.openpty()
     tty.setraw(child_end)  # the bytes as written: no "\r\n" for "\n"
     process = subprocess.Popen([sys.executable, *args], stdin=subprocess.DEVNULL,
-                               stdout=subprocess.DEVNULL, stderr=child_end, cwd=ROOT)
+                               stdout=subprocess.DEVNULL, stderr=child_end, cwd=ROOT, env=env)
     os.close(child_end)
     try:
         output = _read(terminal, until_any=True, seconds=300)
@@ -98,7 +98,7 @@ def samples_scene(tmp_path):
 
 
 @pytest.mark.parametrize("defines", [
-    ["res=3000", "aa=none"],
+    ["res=6000", "aa=none"],
     ["res=1200", "aa=grid", "aa_samples=6"],
     ["res=2000", "aa=adaptive", "aa_threshold=0.02"],
     ["res=2000", "aa=contrast", "aa_samples=8", "aa_threshold=0.05"],
@@ -114,18 +114,49 @@ def test_ctrl_c_stops_a_render(tmp_path, samples_scene, defines):
     assert not out.exists()
 
 
-def test_kill_stops_a_render_as_ctrl_c_does(tmp_path, samples_scene):
+@pytest.mark.parametrize("kernels", ["cached", "compiling"])
+def test_kill_stops_a_render_as_ctrl_c_does(tmp_path, samples_scene, kernels):
     """SIGTERM, as ``kill`` and job schedulers send it: exit code 143, one
-    line, the user's old image as it was and no temporary beside it."""
-    target = tmp_path / "x.png"
+    line, the user's old image as it was and no temporary beside it; also
+    while Dr.Jit compiles (an empty kernel cache), when the main thread is
+    in C++ and the watcher ends the process."""
+    target = tmp_path / "out" / "x.png"
+    target.parent.mkdir()
     target.write_bytes(b"the user's image")
+    env = None
+    if kernels == "compiling":
+        env = dict(os.environ, HOME=str(tmp_path / "home"), XDG_CACHE_HOME=str(tmp_path / "cache"))
     code, seconds, output = interrupted(
         ["-m", "mitsuba_whitted.cli", "render", str(samples_scene), "-o", str(target),
-         "-D", "res=3000", "-D", "aa=none"], signum=signal.SIGTERM)
+         "-D", "res=6000", "-D", "aa=none"], signum=signal.SIGTERM, env=env)
     assert_stopped(code, seconds, output, signum=signal.SIGTERM)
     assert output.count("\n") == 1, output
     assert target.read_bytes() == b"the user's image"
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.xml", "x.png"]
+    assert [p.name for p in target.parent.iterdir()] == ["x.png"]
+
+
+def test_a_signal_during_an_import_lets_the_import_finish(tmp_path):
+    """An exception raised in Python code that an extension runs while it
+    initialises (nanobind making OpenImageIO's enums on its first import)
+    ends the process in a fatal error: a signal during an import lets
+    the import finish and stops the command after it."""
+    (tmp_path / "slow_module.py").write_text(
+        "import os, signal, time\n"
+        "os.kill(os.getpid(), signal.SIGINT)\n"
+        "time.sleep(0.2)\n"
+        "open(os.environ['IMPORTED'], 'w').close()\n")
+    command = ("import sys, time\n"
+               "from mitsuba_whitted.cli import run_command\n"
+               "def work():\n"
+               "    import slow_module\n"
+               "    time.sleep(30)\n"
+               "sys.exit(run_command(work))\n")
+    imported = tmp_path / "imported"
+    result = subprocess.run([sys.executable, "-c", command], capture_output=True, text=True,
+                            env=dict(os.environ, PYTHONPATH=str(tmp_path),
+                                     IMPORTED=str(imported)), timeout=60)
+    assert (result.returncode, result.stderr) == (130, "mitsuba-whitted: interrupted.\n")
+    assert imported.exists()
 
 
 @pytest.mark.parametrize("after", [0.15, 0.4])

@@ -27,6 +27,8 @@ import time
 STOPPING = {signal.SIGINT: "interrupted", signal.SIGTERM: "terminated"}
 #: Seconds the main thread has to unwind before the watcher ends the process.
 GRACE = 0.5
+#: Seconds before a signal that came during an import is sent again.
+RETRY = 0.02
 
 
 def exit_code(signum: int) -> int:
@@ -36,8 +38,8 @@ def exit_code(signum: int) -> int:
 
 class InterruptGuard:
     """While active, SIGINT or SIGTERM raises ``KeyboardInterrupt`` once in
-    the main thread and ends the process (:meth:`stop`) at the latest
-    :data:`GRACE` seconds later. ``last_words(signum)`` removes what a
+    the main thread (once an import under way is over) and ends the process
+    (:meth:`stop`) at the latest :data:`GRACE` seconds later. ``last_words(signum)`` removes what a
     stopped process must not leave behind and says that it stopped."""
 
     def __init__(self, last_words):
@@ -46,6 +48,7 @@ class InterruptGuard:
         #: The signal that stopped the command (Ctrl-C's, for a
         #: ``KeyboardInterrupt`` that came from elsewhere).
         self.received = signal.SIGINT
+        self._raised = False
         self._stopping = threading.Lock()
 
     def __enter__(self) -> "InterruptGuard":
@@ -65,10 +68,20 @@ class InterruptGuard:
 
     def _raise_once(self, signum, frame) -> None:
         # A second signal must not break off the clean-up the first started.
+        if self._raised:
+            return
         if not self.requested.is_set():
             self.received = signum
             self.requested.set()
-            raise KeyboardInterrupt
+        # An import broken off leaves a module half made, and inside an
+        # extension's initialisation (nanobind making OpenImageIO's enums)
+        # the exception ends the process in a fatal error: the signal is
+        # sent again a moment later, until the import is over.
+        if _importing(frame):
+            threading.Timer(RETRY, os.kill, (os.getpid(), signum)).start()
+            return
+        self._raised = True
+        raise KeyboardInterrupt
 
     def _watch(self) -> None:
         try:
@@ -76,7 +89,12 @@ class InterruptGuard:
                 signals = os.read(self._read, 64)
                 if not signals:
                     return
-                if any(signum in signals for signum in STOPPING):
+                stopping = [signum for signum in signals if signum in STOPPING]
+                if stopping:
+                    # The main thread, busy in C++, may not have run the
+                    # handler that notes the signal.
+                    if not self.requested.is_set():
+                        self.received = stopping[0]
                     time.sleep(GRACE)
                     self.stop()
         finally:
@@ -91,6 +109,15 @@ class InterruptGuard:
             sys.stdout.flush()
             sys.stderr.flush()
             os._exit(exit_code(self.received))
+
+
+def _importing(frame) -> bool:
+    """Whether ``frame`` runs inside an import."""
+    while frame is not None:
+        if frame.f_code.co_filename.startswith("<frozen importlib"):
+            return True
+        frame = frame.f_back
+    return False
 
 
 def started_as(module: str, script: str) -> bool:
