@@ -135,28 +135,36 @@ def test_kill_stops_a_render_as_ctrl_c_does(tmp_path, samples_scene, kernels):
     assert [p.name for p in target.parent.iterdir()] == ["x.png"]
 
 
-def test_a_signal_during_an_import_lets_the_import_finish(tmp_path):
+SLOW_STEP = ("import os, signal, time\n"
+             "os.kill(os.getpid(), signal.SIGINT)\n"
+             "time.sleep(0.2)\n"
+             "open(os.environ['FINISHED'], 'w').close()\n")
+
+
+@pytest.mark.parametrize("step", [
+    "    import slow_step\n",
+    "    from mitsuba_whitted.interrupt import held_off\n"
+    "    with held_off():\n"
+    "        exec(open(os.path.join(sys.path[-1], 'slow_step.py')).read())\n",
+], ids=["import", "held off"])
+def test_a_signal_during_an_import_or_a_held_off_step_lets_it_finish(tmp_path, step):
     """An exception raised in Python code that an extension runs while it
     initialises (nanobind making OpenImageIO's enums on its first import)
-    ends the process in a fatal error: a signal during an import lets
-    the import finish and stops the command after it."""
-    (tmp_path / "slow_module.py").write_text(
-        "import os, signal, time\n"
-        "os.kill(os.getpid(), signal.SIGINT)\n"
-        "time.sleep(0.2)\n"
-        "open(os.environ['IMPORTED'], 'w').close()\n")
-    command = ("import sys, time\n"
+    ends the process in a fatal error, and one raised between making a file
+    and noting it for removal leaves the file: such steps finish, and the
+    command stops after them."""
+    (tmp_path / "slow_step.py").write_text(SLOW_STEP)
+    command = ("import os, sys, time\n"
+               f"sys.path.append({str(tmp_path)!r})\n"
                "from mitsuba_whitted.cli import run_command\n"
-               "def work():\n"
-               "    import slow_module\n"
+               "def work():\n" + step +
                "    time.sleep(30)\n"
                "sys.exit(run_command(work))\n")
-    imported = tmp_path / "imported"
+    finished = tmp_path / "finished"
     result = subprocess.run([sys.executable, "-c", command], capture_output=True, text=True,
-                            env=dict(os.environ, PYTHONPATH=str(tmp_path),
-                                     IMPORTED=str(imported)), timeout=60)
+                            env=dict(os.environ, FINISHED=str(finished)), timeout=60)
     assert (result.returncode, result.stderr) == (130, "mitsuba-whitted: interrupted.\n")
-    assert imported.exists()
+    assert finished.exists()
 
 
 @pytest.mark.parametrize("after", [0.15, 0.4])

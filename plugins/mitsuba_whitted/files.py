@@ -18,6 +18,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import BinaryIO, Callable
 
+from .interrupt import held_off
 from .system import proc_field
 
 #: Temporary files and folders not yet renamed into place. A process that
@@ -84,9 +85,10 @@ def _probe(target: Path, folder: Path) -> None:
     if not existing.is_dir():
         raise cannot_write(target, f"'{existing}' is a file, not a folder")
     try:
-        handle, name = tempfile.mkstemp(dir=existing, prefix=".mitsuba-whitted-probe-")
-        os.close(handle)
-        os.unlink(name)
+        with held_off():  # made and removed, never left behind
+            handle, name = tempfile.mkstemp(dir=existing, prefix=".mitsuba-whitted-probe-")
+            os.close(handle)
+            os.unlink(name)
     except OSError as error:
         raise cannot_write(target, reason(error)) from error
 
@@ -100,15 +102,16 @@ def write_atomically(path: str | Path, write: Callable[[BinaryIO], None]) -> Pat
     behind, whatever stopped it."""
     path = Path(path)
     target = Path(os.path.realpath(path))
-    try:
-        target.parent.mkdir(parents=True, exist_ok=True)
-        mode = _mode_for(target, 0o666)
-        handle = tempfile.NamedTemporaryFile(dir=target.parent, prefix=f".{target.name}.",
-                                             suffix=".partial", delete=False)
-    except OSError as error:
-        raise cannot_write(path, reason(error)) from error
-    temporary = Path(handle.name)
-    _pending.add(temporary)
+    with held_off():  # the temporary is noted for removal as soon as it exists
+        try:
+            target.parent.mkdir(parents=True, exist_ok=True)
+            mode = _mode_for(target, 0o666)
+            handle = tempfile.NamedTemporaryFile(dir=target.parent, prefix=f".{target.name}.",
+                                                 suffix=".partial", delete=False)
+        except OSError as error:
+            raise cannot_write(path, reason(error)) from error
+        temporary = Path(handle.name)
+        _pending.add(temporary)
     try:
         with handle:
             write(handle)
@@ -121,8 +124,8 @@ def write_atomically(path: str | Path, write: Callable[[BinaryIO], None]) -> Pat
     except OSError as error:
         raise cannot_write(path, reason(error)) from error
     finally:
-        _pending.discard(temporary)
         temporary.unlink(missing_ok=True)
+        _pending.discard(temporary)
     return path
 
 

@@ -22,6 +22,7 @@ import signal
 import sys
 import threading
 import time
+from contextlib import contextmanager
 
 #: The signals that stop a command, and what it says when one does.
 STOPPING = {signal.SIGINT: "interrupted", signal.SIGTERM: "terminated"}
@@ -76,8 +77,9 @@ class InterruptGuard:
         # An import broken off leaves a module half made, and inside an
         # extension's initialisation (nanobind making OpenImageIO's enums)
         # the exception ends the process in a fatal error: the signal is
-        # sent again a moment later, until the import is over.
-        if _importing(frame):
+        # sent again a moment later, until the import (or a block that
+        # holds signals off) is over.
+        if _held_off or _importing(frame):
             threading.Timer(RETRY, os.kill, (os.getpid(), signum)).start()
             return
         self._raised = True
@@ -109,6 +111,23 @@ class InterruptGuard:
             sys.stdout.flush()
             sys.stderr.flush()
             os._exit(exit_code(self.received))
+
+
+#: How many :func:`held_off` blocks are running.
+_held_off = 0
+
+
+@contextmanager
+def held_off():
+    """A block that a signal does not break off (it is raised once the
+    block is over): for steps that must not stop half done, such as making
+    a file and noting it for removal."""
+    global _held_off
+    _held_off += 1
+    try:
+        yield
+    finally:
+        _held_off -= 1
 
 
 def _importing(frame) -> bool:
