@@ -274,9 +274,10 @@ def run_command(function, *args, program: str = "mitsuba-whitted") -> int:
         files.discard_pending()
         sys.stderr.write(erase_line(sys.stderr) + interrupted_line(program, signum))
 
-    with InterruptGuard(last_words) as guard, plain_warnings():
+    with InterruptGuard(last_words) as guard:
         try:
-            return function(*args)
+            with plain_warnings():
+                return function(*args)
         except SystemExit:
             raise
         except BaseException as error:

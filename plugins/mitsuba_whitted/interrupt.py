@@ -55,10 +55,13 @@ class InterruptGuard:
     def __enter__(self) -> "InterruptGuard":
         self._read, self._write = os.pipe()
         os.set_blocking(self._write, False)
-        self._previous_fd = signal.set_wakeup_fd(self._write, warn_on_full_buffer=False)
-        self._previous_handlers = {signum: signal.signal(signum, self._raise_once)
-                                   for signum in STOPPING}
-        threading.Thread(target=self._watch, name="interrupt watcher", daemon=True).start()
+        # Held off: a signal that comes while the guard is set up is raised
+        # in the guarded block, not out of this method.
+        with held_off():
+            self._previous_fd = signal.set_wakeup_fd(self._write, warn_on_full_buffer=False)
+            self._previous_handlers = {signum: signal.signal(signum, self._raise_once)
+                                       for signum in STOPPING}
+            threading.Thread(target=self._watch, name="interrupt watcher", daemon=True).start()
         return self
 
     def __exit__(self, *exc) -> None:
