@@ -150,21 +150,22 @@ def replaced_folder(target: str | Path):
     target = Path(target)
     if target.exists() and not target.is_dir():
         raise cannot_write(target, "it is a file, not a folder")
-    try:
-        target.parent.mkdir(parents=True, exist_ok=True)
-        mode = _mode_for(target, 0o777)
-        staging = Path(tempfile.mkdtemp(dir=target.parent, prefix=f".{target.name}.",
-                                        suffix=".partial"))
-    except OSError as error:
-        raise cannot_write(target, reason(error)) from error
-    _pending.add(staging)
+    with held_off():  # the staging folder is noted for removal as soon as it exists
+        try:
+            target.parent.mkdir(parents=True, exist_ok=True)
+            mode = _mode_for(target, 0o777)
+            staging = Path(tempfile.mkdtemp(dir=target.parent, prefix=f".{target.name}.",
+                                            suffix=".partial"))
+        except OSError as error:
+            raise cannot_write(target, reason(error)) from error
+        _pending.add(staging)
     try:
         staging.chmod(mode)
         yield staging
         _swap_in(staging, target)
     finally:
-        _pending.discard(staging)
         shutil.rmtree(staging, ignore_errors=True)
+        _pending.discard(staging)
 
 
 def _swap_in(staging: Path, target: Path) -> None:

@@ -40,8 +40,9 @@ def exit_code(signum: int) -> int:
 class InterruptGuard:
     """While active, SIGINT or SIGTERM raises ``KeyboardInterrupt`` once in
     the main thread (once an import under way is over) and ends the process
-    (:meth:`stop`) at the latest :data:`GRACE` seconds later. ``last_words(signum)`` removes what a
-    stopped process must not leave behind and says that it stopped."""
+    (:meth:`stop`) at the latest :data:`GRACE` seconds later.
+    ``last_words(signum)`` removes what a stopped process must not leave
+    behind and says that it stopped."""
 
     def __init__(self, last_words):
         self.last_words = last_words
@@ -74,9 +75,7 @@ class InterruptGuard:
         # A second signal must not break off the clean-up the first started.
         if self._raised:
             return
-        if not self.requested.is_set():
-            self.received = signum
-            self.requested.set()
+        self._note(signum)
         # An import broken off leaves a module half made, and inside an
         # extension's initialisation (nanobind making OpenImageIO's enums)
         # the exception ends the process in a fatal error: the signal is
@@ -88,6 +87,12 @@ class InterruptGuard:
         self._raised = True
         raise KeyboardInterrupt
 
+    def _note(self, signum: int) -> None:
+        """Keep the first signal that asked the command to stop."""
+        if not self.requested.is_set():
+            self.received = signum
+            self.requested.set()
+
     def _watch(self) -> None:
         try:
             while True:
@@ -98,8 +103,7 @@ class InterruptGuard:
                 if stopping:
                     # The main thread, busy in C++, may not have run the
                     # handler that notes the signal.
-                    if not self.requested.is_set():
-                        self.received = stopping[0]
+                    self._note(stopping[0])
                     time.sleep(GRACE)
                     self.stop()
         finally:
