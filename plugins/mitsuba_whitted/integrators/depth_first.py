@@ -54,7 +54,7 @@ MAX_STACK = 32
 LAUNCH_FACTOR = 8
 #: Per-lane counts a kernel returns (``RayStats`` fields).
 COUNTED = ("reflection", "refraction", "passthrough", "shadow", "shadow_march", "refined",
-           "cut")
+           "cut", "indirect", "indirect_shadow")
 
 
 def stack_capacity(spawning_generations: int, fan_out: int) -> int:
@@ -247,13 +247,16 @@ class DepthFirstTracer(Tracer):
         counts = dict(counts)
         if self.refiner is not None:
             counts["refined"] += mi.UInt32(self.refiner.on_proxy(si, hit))
-        local, shadow, children = self.shader.shade(si, traced, weight, key,
-                                                    self.shader.work(generation))
+        local, shadow, indirect, children = self.shader.shade(
+            si, traced, weight, key, self.shader.work(generation), generation)
         if local is not None:
             radiance = radiance + local
         if shadow is not None:
             counts["shadow"] += shadow.tested
             counts["shadow_march"] += shadow.marched
+        if indirect is not None:
+            counts["indirect"] += indirect.traced
+            counts["indirect_shadow"] += indirect.shadow
         live = mi.Bool(False)
         for child in children:
             valid = child.code != 0

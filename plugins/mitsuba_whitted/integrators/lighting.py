@@ -41,17 +41,26 @@ class LightingSettings:
     ambient: mi.ScalarColor3f
     emitter_samples: int
     seed: int
+    #: Paths of indirect light per smooth hit (:mod:`.indirect`); 0: none.
+    indirect_samples: int = 0
 
 
 class ShadowTester(ReadsScene):
-    """Transmittance of the segment from a hit to a point on a light."""
+    """Transmittance of the segment from a hit to a point on a light.
+
+    ``shadows``: ``"physical"`` and ``"tinted"`` are the integrator's modes
+    (:meth:`_passes`); ``"blocking"``, every surface blocks, as the shadow
+    rays of Mitsuba's path tracer do (the indirect paths' own shadow rays,
+    :mod:`.indirect`). An analytic shape blocks only where its exact
+    surface is, in every mode."""
 
     def __init__(self, scene_ref: SceneRef, needs: SceneNeeds, shadows: str, intersect):
         self.scene_ref = scene_ref
         self.needs = needs
-        self.tinted = shadows != "physical"
+        self.tinted = shadows in ("tinted", "seed")
+        self.blocking = shadows == "blocking"
         self.intersect = intersect
-        self.opaque = not needs.transmissive and not needs.analytic_shapes
+        self.opaque = not needs.analytic_shapes and (self.blocking or not needs.transmissive)
         #: The :class:`~.shadow_log.ShadowLog` the rays are written to while
         #: a capturing render traces a kernel (:meth:`logging_to`), else
         #: ``None``: then nothing is written and the kernel does no more.
@@ -128,6 +137,8 @@ class ShadowTester(ReadsScene):
         """What a surface lets through along the shadow ray, 0 if it blocks:
         one dispatch, in which a BSDF that cannot let light through answers
         0 without any call (see :meth:`_passes`)."""
+        if self.blocking:
+            return mi.Color3f(0)
         return dr.dispatch(si.bsdf(ray), self._passes, si, active)
 
     def _passes(self, bsdf: mi.BSDF, si: mi.SurfaceInteraction3f, active) -> mi.Color3f:

@@ -15,6 +15,7 @@ import drjit as dr
 import mitsuba as mi
 
 from .bsdf_query import BsdfQuery, DeltaChild, query_bsdf
+from .indirect import IndirectLight
 from .lighting import DirectLighting
 from .offsets import spawn_ray
 from .scene_needs import SceneNeeds
@@ -40,6 +41,8 @@ class HitWork:
     emit: object = False
     light: object = False
     spawn: object = False
+    #: Paths of indirect light from the hit (:mod:`.indirect`).
+    gather: object = False
 
     def any(self) -> bool:
         return any(part is not False for part in (self.emit, self.light, self.spawn))
@@ -59,11 +62,12 @@ class HitShader(ReadsScene):
     """Local radiance and delta children of hits."""
 
     def __init__(self, scene_ref: SceneRef, needs: SceneNeeds, settings: TreeSettings,
-                 lighting: DirectLighting):
+                 lighting: DirectLighting, indirect: IndirectLight | None = None):
         self.scene_ref = scene_ref
         self.needs = needs
         self.settings = settings
         self.lighting = lighting
+        self.indirect = indirect
         self.components = [("delta", c) for c in needs.delta_components]
         if needs.null_surfaces:
             self.components.append(("null", None))
@@ -85,33 +89,45 @@ class HitShader(ReadsScene):
         emit = self.needs.hittable_emitters and (generation + 1 <= depth)
         if self.settings.hide_emitters and emit is not False:
             emit = emit & (generation > 0)
+        light = self.needs.smooth_surfaces and direct
         return HitWork(
             emit=emit,
-            light=self.needs.smooth_surfaces and direct,
+            light=light,
             # Children are worth tracing if they can see emission or shade.
             spawn=self.fan_out > 0 and direct & (self.needs.hittable_emitters
-                                                 | (generation + 3 <= depth)))
+                                                 | (generation + 3 <= depth)),
+            # Indirect light has at least two segments past the hit.
+            gather=(self.indirect is not None and light is not False
+                    and light & (generation + 3 <= depth)))
 
-    def shade(self, si, ray, throughput, key, work: HitWork):
+    def shade(self, si, ray, throughput, key, work: HitWork, generation=0):
         """Radiance (times ``throughput``, ``None`` if nothing adds any),
         the shadow rays of each lane (``ShadowRays``, ``None`` without
-        light work) and one :class:`Child` per component."""
-        local = shadow = None
+        light work), the rays of the indirect paths (``IndirectRays``,
+        ``None`` without them) and one :class:`Child` per component.
+        ``generation``: the hit's (an int, or per lane)."""
+        local = shadow = indirect = None
         children = []
         if work.emit is not False:
             # Misses see the environment emitter, if any.
             local = si.emitter(self.scene).eval(si, mi.Bool(work.emit))
         if work.light is not False or work.spawn is not False:
-            reflected, shadow, children = self._scatter(si, ray, throughput, key, work)
+            reflected, shadow, children, light = self._scatter(si, ray, throughput, key, work)
             if reflected is not None:
                 local = reflected if local is None else local + reflected
+            if work.gather is not False:
+                gathered, indirect = self.indirect.estimate(
+                    si, key, throughput, light & work.gather,
+                    self.settings.max_depth - generation - 1)
+                local = gathered if local is None else local + gathered
         if local is not None:
             local = local * throughput
-        return local, shadow, children
+        return local, shadow, indirect, children
 
     def _scatter(self, si, ray, throughput, key, work: HitWork):
         """What the hit's BSDF adds: light reflected from the lights, the
-        shadow rays that took, and the candidate children."""
+        shadow rays that took, the candidate children, and the lanes that
+        lights reach."""
         hit = si.is_valid()
         bsdf = si.bsdf(ray)
         light = spawn = mi.Bool(False)
@@ -131,7 +147,7 @@ class HitShader(ReadsScene):
         children = [self._candidate(index, kind, terms.children[index], si, ray,
                                     throughput, key, spawn)
                     for index, (kind, _) in enumerate(query.components)]
-        return reflected, shadow, children
+        return reflected, shadow, children, light
 
     def _candidate(self, index, kind, child: DeltaChild, si, ray, throughput, key, spawn):
         """The child ray of one component, coded 0 where it is not traced

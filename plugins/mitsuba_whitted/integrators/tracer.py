@@ -41,10 +41,15 @@ class RayStats:
     #: Rays of the kinds above (counted when spawned) left untraced because
     #: their tree reached ``MAX_TREE_RAYS``.
     cut: object = 0
+    #: Closest-hit rays of the indirect paths (:mod:`.indirect`), and
+    #: their shadow rays.
+    indirect: object = 0
+    indirect_shadow: object = 0
     generations: object = 0
     batches: int = 0
 
-    KINDS = ("camera", "reflection", "refraction", "passthrough", "shadow", "shadow_march")
+    KINDS = ("camera", "reflection", "refraction", "passthrough", "shadow", "shadow_march",
+             "indirect", "indirect_shadow")
 
     def as_dict(self) -> dict:
         counts = {kind: to_int(getattr(self, kind)) for kind in self.KINDS}

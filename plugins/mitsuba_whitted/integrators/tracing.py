@@ -7,6 +7,7 @@ import mitsuba as mi
 
 from .analytic import AnalyticRefiner
 from .depth_first import DepthFirstTracer
+from .indirect import IndirectLight
 from .lighting import DirectLighting, LightingSettings, ShadowTester
 from .scene_needs import SceneNeeds
 from .scene_ref import SceneRef
@@ -28,7 +29,12 @@ def build_tracer(scene: mi.Scene, needs: SceneNeeds, shadows: str,
                if needs.analytic_shapes else None)
     intersect = refiner.intersect if refiner else plain_intersect(scene_ref)
     shadow_test = ShadowTester(scene_ref, needs, shadows, intersect)
-    shader = HitShader(scene_ref, needs, tree, DirectLighting(needs, lighting, shadow_test))
+    indirect = None
+    if lighting.indirect_samples:
+        indirect = IndirectLight(scene_ref, needs, lighting.indirect_samples, lighting.seed,
+                                 intersect, ShadowTester(scene_ref, needs, "blocking", intersect))
+    shader = HitShader(scene_ref, needs, tree, DirectLighting(needs, lighting, shadow_test),
+                       indirect)
     if not (wavefront or differentiable) and DepthFirstTracer.supports(shader):
         return DepthFirstTracer(shader, intersect, refiner, wavefront_size)
     return WavefrontTracer(shader, intersect, refiner, wavefront_size,

@@ -112,18 +112,25 @@ class WavefrontTracer(Tracer):
         work = self.shader.work(generation)
         if not work.any() and generation > 0:
             return dr.zeros(mi.Color3f, len(rays)), None, None, None
+        # The generation as an opaque value: the indirect paths' length
+        # depends on it, and one frozen kernel serves every generation.
         kernel, arguments = self._kernel(work), (len(rays), self.shader.scene,
-                                                 self._kernel_inputs, *rays.fields())
+                                                 self._kernel_inputs, *rays.fields(),
+                                                 dr.opaque(mi.UInt32, generation))
         outputs = kernel(*arguments, log)
         if log is not None and log.make_room():
             # Once more with room for the queries it counted: same rays, same results.
             outputs = kernel(*arguments, log)
-        local, alpha, shadow, refined, candidates = outputs
+        local, alpha, shadow, indirect, refined, candidates = outputs
         local = dr.zeros(mi.Color3f, len(rays)) if local is None else local
         if shadow is not None:
             tested, marched = shadow
             self.stats.shadow = self.stats.shadow + dr.sum(tested)
             self.stats.shadow_march = self.stats.shadow_march + dr.sum(marched)
+        if indirect is not None:
+            traced, shadow_rays = indirect
+            self.stats.indirect = self.stats.indirect + dr.sum(traced)
+            self.stats.indirect_shadow = self.stats.indirect_shadow + dr.sum(shadow_rays)
         if refined is not None:
             self.stats.refined = self.stats.refined + dr.sum(refined)
         if not candidates:
@@ -140,10 +147,11 @@ class WavefrontTracer(Tracer):
                                                   work)
         return self._generation[work]
 
-    def _generation_kernel(self, scene, inputs, o, d, throughput, key, log, work: HitWork):
+    def _generation_kernel(self, scene, inputs, o, d, throughput, key, generation, log,
+                           work: HitWork):
         """Everything one generation computes, as one traced function of its
-        rays: radiance, alpha, shadow rays and refinements per lane, and one
-        candidate child per delta component; the shadow test writes its rays
+        rays: radiance, alpha, shadow rays, indirect rays and refinements per
+        lane, and one candidate child per delta component; the shadow test writes its rays
         to ``log`` (filled in place) where it is not ``None``.
 
         It reads no sizes, so Dr.Jit can freeze it and replay its kernels for
@@ -160,12 +168,15 @@ class WavefrontTracer(Tracer):
         if self.refiner is not None:
             refined = mi.UInt32(self.refiner.on_proxy(si, hit))
         with self.shader.lighting.shadows.logging_to(log):
-            local, shadow, children = self.shader.shade(si, ray, throughput, key, work)
+            local, shadow, indirect, children = self.shader.shade(si, ray, throughput, key,
+                                                                  work, generation)
         if shadow is not None:
             shadow = (shadow.tested, shadow.marched)
+        if indirect is not None:
+            indirect = (indirect.traced, indirect.shadow)
         candidates = [(child.o, child.d, child.throughput, child.key, child.code)
                       for child in children]
-        return local, mi.Float(hit), shadow, refined, candidates
+        return local, mi.Float(hit), shadow, indirect, refined, candidates
 
     def _compact(self, candidates):
         """Children of all components in one batch; a child's slot is

@@ -30,6 +30,9 @@ SHADOW_MODES = ("physical", "tinted", "seed")
 UNBOUNDED_DEPTH = 256
 #: Deeper adaptive levels would place samples closer than float32 resolves.
 AA_DEPTH_LIMIT = 16
+#: Most indirect paths per hit: the Sobol points' 32-bit indices, and far
+#: beyond what converges any image.
+MAX_INDIRECT_SAMPLES = 1 << 20
 
 
 def _given(props: mi.Properties, name: str, default):
@@ -70,6 +73,7 @@ SETTINGS = {
     "max_depth": _whole(10),
     "ambient": _colour,
     "emitter_samples": _whole(16),
+    "indirect_samples": _whole(0),
     "min_throughput": _real(1e-4),
     "hide_emitters": _flag,
     "aa_samples": _whole(2),
@@ -124,6 +128,19 @@ class WhittedIntegrator(mi.SamplingIntegrator):
        - |int|
        - Shadow rays per hit for each area or environment emitter, placed
          by a rotated low-discrepancy sequence. (Default: 16)
+     * - indirect_samples
+       - |int|
+       - Paths of indirect light per smooth hit of the ray tree: 0 is
+         classic Whitted. Above 0, each hit with a diffuse or glossy part
+         also gathers the light Whitted leaves out (interreflection,
+         caustics from area and environment lights) by path tracing from
+         that hit, with light sampling and multiple importance sampling,
+         along Owen-scrambled Sobol samples; the tree keeps everything it
+         does exactly (delta chains, delta lights, the shadow rays to every
+         light). Hits that see only delta chains spend nothing on it. With
+         ``ambient`` 0 and ``shadows="physical"``, the image's expectation
+         is that of Mitsuba's ``path`` at the same ``max_depth``.
+         Not differentiated. (Default: 0)
      * - min_throughput
        - |float|
        - Ray-tree pruning (Hall & Greenberg 1983): a reflected or refracted
@@ -313,6 +330,9 @@ class WhittedIntegrator(mi.SamplingIntegrator):
               f"must be -1 (unbounded) or >= 0 (got {v['max_depth']})")
         check(v["emitter_samples"] >= 1, PLUGIN_NAME, "emitter_samples",
               f"must be >= 1 (got {v['emitter_samples']})")
+        check(0 <= v["indirect_samples"] <= MAX_INDIRECT_SAMPLES, PLUGIN_NAME,
+              "indirect_samples", f"must be between 0 and {MAX_INDIRECT_SAMPLES} "
+              f"(got {v['indirect_samples']})")
         check(v["min_throughput"] >= 0, PLUGIN_NAME, "min_throughput",
               f"must be >= 0 (got {v['min_throughput']:g})")
         check(v["aa_samples"] >= 1, PLUGIN_NAME, "aa_samples",
@@ -348,7 +368,8 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         depth = UNBOUNDED_DEPTH if self.max_depth == -1 else self.max_depth
         ambient = self._exposed.arrays["ambient"] if differentiable else self.ambient
         return build_tracer(scene, needs or analyse(scene), self.shadows,
-                            LightingSettings(ambient, self.emitter_samples, seed),
+                            LightingSettings(ambient, self.emitter_samples, seed,
+                                             self.indirect_samples),
                             TreeSettings(depth, self.min_throughput, self.hide_emitters),
                             self.wavefront_size, wavefront, differentiable)
 
@@ -372,7 +393,8 @@ class WhittedIntegrator(mi.SamplingIntegrator):
 
     def _parameter_values(self) -> tuple:
         return (self.max_depth, self.shadows, self.emitter_samples, self.min_throughput,
-                self.hide_emitters, self.wavefront_size, tuple(self.ambient))
+                self.hide_emitters, self.wavefront_size, tuple(self.ambient),
+                self.indirect_samples)
 
     # ---------------------------------------------------------------- render
 
@@ -448,6 +470,9 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         differentiated parameters, once the variant and ``params`` are found
         differentiable."""
         gradients.require_differentiable_variant()
+        check(self.indirect_samples == 0, PLUGIN_NAME, "indirect_samples",
+              f"is {self.indirect_samples}, and the indirect light is not differentiated: "
+              "set it to 0 for gradients")
         keys = gradients.differentiated(params)
         sensor = _sensor(scene, sensor)
         self._note_sample_count(spp)

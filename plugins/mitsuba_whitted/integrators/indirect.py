@@ -1,0 +1,207 @@
+"""The light classic Whitted ray tracing leaves out, estimated by path
+tracing from the smooth hits of the ray tree (``indirect_samples``).
+
+At a hit whose BSDF has a smooth (diffuse or glossy) part, the tree adds
+the emission, the light of every emitter through that part (its shadow
+rays) and the light of the delta children. Light reaches the hit along
+other paths too: reflected by other smooth surfaces (interreflection), or
+through delta chains from area and environment lights (caustics). Whitted
+has no path for them. With ``indirect_samples`` N, each such hit estimates
+that light with N paths:
+
+- A path's first direction is drawn from the smooth part of the hit's BSDF
+  alone: its delta lobes are the tree's. Emission reached along it
+  straight, through surfaces that let light pass without bending it (null,
+  mask, index-matched and thin dielectrics), is the light the hit's own
+  shadow rays counted, and is left out.
+- At every later vertex, a path tracer's step: one light sample
+  (next-event estimation, whose shadow ray any surface blocks) and one
+  sample of the whole BSDF, delta lobes included. Where the BSDF's
+  direction reaches emission, the two strategies are weighed by the power
+  heuristic (Veach 1995); delta lobes and delta lights take weight 1.
+- Russian roulette ends paths that carry little from their third vertex
+  on, by the product of the tree's throughput and the path's, so a hit
+  seen in a dim reflection spends little on long paths.
+- The samples come from Owen-scrambled Sobol points (:mod:`.sequence`),
+  seeded by the hit's key and the render seed: deterministic, as the rest.
+
+A path has at most ``max_depth`` segments from the camera, as in Mitsuba's
+path tracer, so that with no ambient term and physical shadows the image's
+expectation is that of ``path`` at the same ``max_depth``.
+
+One loop runs the N paths of a lane one after the other: a lane whose path
+ends starts its next one at once, rather than waiting for the longest path
+of its SIMD packet.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+
+from .offsets import spawn_ray
+from .scene_ref import ReadsScene
+from .sequence import PaddedSobol, mix
+
+#: Paths start Russian roulette at this vertex (0 is the tree's hit).
+ROULETTE_FROM = 2
+#: Most a path survives a roulette with, so that every path ends.
+ROULETTE_CAP = 0.95
+#: Dimension pairs one vertex draws: the BSDF's direction, its lobe and the
+#: roulette, the light sample.
+PAIRS_PER_VERTEX = 3
+#: A direction this close to the incoming one is "straight through".
+STRAIGHT_COSINE = 1.0 - 1e-5
+
+
+@dataclass
+class IndirectRays:
+    """Per lane: the closest-hit rays of the indirect paths, and their
+    shadow rays (any-hit tests, and the closest-hit queries that follow a
+    blocked one past a proxy mesh)."""
+    traced: mi.UInt32
+    shadow: mi.UInt32
+
+    def __add__(self, other: "IndirectRays") -> "IndirectRays":
+        return IndirectRays(self.traced + other.traced, self.shadow + other.shadow)
+
+
+def power_heuristic(a: mi.Float, b: mi.Float) -> mi.Float:
+    """Veach's power heuristic (exponent 2) for the strategy of density ``a``."""
+    a2 = a * a
+    weight = a2 / (a2 + b * b)
+    return dr.select(dr.isfinite(weight), weight, 0)
+
+
+class IndirectLight(ReadsScene):
+    """``estimate``: the mean of ``samples`` path-traced estimates of the
+    light a smooth hit receives other than from its shadow rays and delta
+    children."""
+
+    def __init__(self, scene_ref, needs, samples: int, seed: int, intersect, shadow_test):
+        self.scene_ref = scene_ref
+        self.needs = needs
+        self.samples = samples
+        #: Mixed into every hit's key, so each render seed gives other samples.
+        self.salt = int(mix(mi.UInt32((seed * 0x27D4EB2D + 0x165667B1) % (1 << 32)))[0])
+        self.intersect = intersect
+        #: Blocks at every surface but where a proxy holds no exact surface.
+        self.shadow_test = shadow_test
+
+    @dr.syntax
+    def estimate(self, si: mi.SurfaceInteraction3f, key: mi.UInt32, throughput: mi.Color3f,
+                 active: mi.Bool, segments):
+        """Indirect radiance leaving ``si`` towards ``-ray`` (not yet times
+        ``throughput``, which only steers the roulette), and the rays cast.
+        ``segments``: per lane, how many segments a path from ``si`` may
+        have (``max_depth`` less those of the camera path to ``si``)."""
+        sequence = PaddedSobol(mix(key ^ self.salt))
+        total = mi.Color3f(0)
+        rays = IndirectRays(mi.UInt32(0), mi.UInt32(0))
+        sample = mi.UInt32(0)
+        vertex = mi.UInt32(0)
+        here = dr.zeros(mi.SurfaceInteraction3f)
+        beta = mi.Color3f(1)
+        eta = mi.Float(1)
+        straight = mi.Bool(True)
+        active = mi.Bool(active) & (segments >= 2)
+        while active:
+            # A lane at vertex 0 starts its next path at the tree's hit.
+            start = vertex == 0
+            here = dr.select(start, si, here)
+            beta[start] = 1
+            eta[start] = 1
+            pair = vertex * PAIRS_PER_VERTEX
+            u_direction = sequence.point(sample, pair)
+            u_more = sequence.point(sample, pair + 1)
+            u_light = sequence.point(sample, pair + 2)
+            step = self._step(here, start, u_light, u_more.x, u_direction, active)
+            total += beta * step.light
+            rays.shadow += step.shadow_rays
+            delta = mi.has_flag(step.bs.sampled_type, mi.BSDFFlags.Delta)
+            straight = start | (straight & self._passes_straight(here, step.bs))
+            beta *= step.weight
+            eta *= step.bs.eta
+            go = active & (step.bs.pdf > 0) & dr.any(beta > 0)
+            survival = dr.minimum(dr.max(beta * throughput) * eta * eta, ROULETTE_CAP)
+            roulette = go & (vertex >= ROULETTE_FROM)
+            go &= ~roulette | (u_more.y < survival)
+            beta[roulette] = beta / survival
+            ray = spawn_ray(here, here.to_world(step.bs.wo), self.needs.scale)
+            hit = self.intersect(ray, go)
+            rays.traced += mi.UInt32(go)
+            total += beta * self._emission(hit, here, step.bs.pdf, delta, go & ~straight)
+            # Another segment may follow: a light sample or a direction.
+            go &= hit.is_valid() & (vertex + 2 <= segments)
+            here = dr.select(go, hit, here)
+            vertex = dr.select(go, vertex + 1, 0)
+            sample[~go] = sample + 1
+            active &= go | (sample < self.samples)
+        return total / self.samples, rays
+
+    def _step(self, here, start, u_light, u_lobe, u_direction, active):
+        """At ``here``: the light of one emitter sample (none at the tree's
+        hit, whose shadow rays lit it) and a sample of the BSDF for the
+        next direction (of its smooth part alone at the tree's hit)."""
+        lit = active & ~start
+        ds, emitted = self.scene.sample_emitter_direction(here, u_light, False, lit)
+        answer = dr.dispatch(here.bsdf(), _vertex_bsdf, here, here.to_local(ds.d), u_lobe,
+                             u_direction, start, active)
+        value, pdf, bs, weight = answer
+        contribution = value * mi.Color3f(emitted)
+        lit &= (ds.pdf > 0) & dr.any(contribution > 0)
+        passed, marched = self.shadow_test.transmittance(here, ds.p, lit, 0)
+        mis = dr.select(ds.delta, 1, power_heuristic(ds.pdf, pdf))
+        light = dr.select(lit, contribution * passed * mis, 0)
+        return VertexStep(light, bs, mi.Color3f(weight), mi.UInt32(lit) + marched)
+
+    def _emission(self, hit, origin, bsdf_pdf, delta, active) -> mi.Color3f:
+        """Emission reached at ``hit`` from ``origin`` by a BSDF sample of
+        density ``bsdf_pdf`` (``delta``: of a delta lobe), weighed against
+        the light samples that could have found it."""
+        emitter = hit.emitter(self.scene, active)
+        radiance = emitter.eval(hit, active)
+        ds = mi.DirectionSample3f(self.scene, hit, origin)
+        light_pdf = self.scene.pdf_emitter_direction(origin, ds, active & ~delta)
+        weight = dr.select(delta, 1, power_heuristic(bsdf_pdf, light_pdf))
+        return dr.select(active, mi.Color3f(radiance) * weight, 0)
+
+    @staticmethod
+    def _passes_straight(here, bs) -> mi.Bool:
+        """Whether the sampled lobe lets the path on unbent (null, or a
+        delta transmission along the incoming direction)."""
+        null = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Null)
+        transmitted = mi.has_flag(bs.sampled_type, mi.BSDFFlags.DeltaTransmission)
+        return null | (transmitted & (dr.dot(bs.wo, -here.wi) >= STRAIGHT_COSINE))
+
+
+@dataclass
+class VertexStep:
+    light: mi.Color3f     # the light sample's contribution (times nothing yet)
+    bs: mi.BSDFSample3f   # the next direction
+    weight: mi.Color3f    # its BSDF value over density
+    shadow_rays: mi.UInt32
+
+
+def _vertex_bsdf(bsdf: mi.BSDF, si, wo_light, u_lobe, u_direction, start, active):
+    """One BSDF's answers at a path vertex: its value and density towards the
+    light sample, and its next direction, of the smooth part alone where the
+    path starts (``start``). Specialised to the instance: a BSDF with no
+    delta or null part samples once."""
+    flags = bsdf.flags()
+    ctx = mi.BSDFContext()
+    if mi.has_flag(flags, mi.BSDFFlags.Smooth):
+        value, pdf, bs, weight = bsdf.eval_pdf_sample(ctx, si, wo_light, u_lobe, u_direction,
+                                                      active)
+    else:
+        bs, weight = bsdf.sample(ctx, si, u_lobe, u_direction, active)
+        value, pdf = mi.Color3f(0), mi.Float(0)
+    if mi.has_flag(flags, mi.BSDFFlags.Smooth) and mi.has_flag(
+            flags, mi.BSDFFlags.Delta | mi.BSDFFlags.Null):
+        smooth = mi.BSDFContext(mi.TransportMode.Radiance, mi.BSDFFlags.Smooth)
+        first, first_weight = bsdf.sample(smooth, si, u_lobe, u_direction, active & start)
+        bs = dr.select(start, first, bs)
+        weight = dr.select(start, first_weight, weight)
+    return mi.Color3f(value), pdf, bs, mi.Color3f(weight)
