@@ -325,6 +325,8 @@ INTEGRATOR_CASES = [
     ("max_depth", -2, "deep", '<string name="max_depth" value="deep"/>'),
     ("max_depth", -5, 2.5, '<float name="max_depth" value="2.5"/>'),
     ("emitter_samples", 0, 0, '<integer name="emitter_samples" value="0"/>'),
+    ("indirect_samples", -1, 1.5, '<float name="indirect_samples" value="1.5"/>'),
+    ("indirect_samples", 1 << 21, -3, '<integer name="indirect_samples" value="-3"/>'),
     ("min_throughput", NAN, NAN, '<float name="min_throughput" value="nan"/>'),
     ("min_throughput", -1.0, INF, '<float name="min_throughput" value="inf"/>'),
     ("aa_samples", 0, 0, '<integer name="aa_samples" value="0"/>'),

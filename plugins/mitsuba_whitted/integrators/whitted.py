@@ -529,6 +529,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
             self._note_once("pinhole", "whitted: aa='none' traces each pixel from the centre "
                             "of the thin lens's aperture, so the image has no depth of field; "
                             "use 'grid', 'adaptive' or 'contrast'.")
+        self._note_indirect_model()
         _settle_sampler(sensor)
         tracer = self._tracer_for(scene, seed)
         plan = plan_render(self._demand(sensor.film(), tracer, film_entries, held_bytes))
@@ -588,6 +589,18 @@ class WhittedIntegrator(mi.SamplingIntegrator):
             return sampler.render(band, shade, refined_before)
         n = self.aa_samples if self.aa == "grid" else 1
         return antialias.render_grid(band, n, shade, lens)
+
+    def _note_indirect_model(self) -> None:
+        """The ambient term and tinted shadows stand in for light that the
+        indirect paths also gather: with both, some light counts twice."""
+        doubled = [what for what, present in (
+            ("the ambient term", any(c > 0 for c in self.ambient)),
+            ("tinted shadows", self.shadows != "physical")) if present]
+        if self.indirect_samples and doubled:
+            self._note_once("indirect model", (
+                f"whitted: with indirect_samples > 0, {' and '.join(doubled)} add light that "
+                "the indirect paths gather as well; set 'ambient' to 0 and 'shadows' to "
+                "'physical' for an image that converges to the path tracer's."))
 
     def _note_sample_count(self, spp: int) -> None:
         """``mi.render(..., spp=N)``: whitted places its own camera samples

@@ -1,0 +1,184 @@
+"""The light classic Whitted leaves out, gathered by path tracing from the
+ray tree's smooth hits (``indirect_samples``).
+
+Oracles: Mitsuba's ``path`` in expectation (``test_equivalence.py`` runs the
+suite's indirect cases; here, the mean of a whole image against a converged
+``path`` render), the classic integrator where nothing indirect can reach
+the camera, the (0, m, 2)-net property of the Sobol points, and the
+wavefront tracer, which walks the same trees one generation at a time.
+"""
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+import pytest
+
+from conftest import assert_finite, cli, one_line
+from mitsuba_whitted import load_file
+from mitsuba_whitted.errors import ParameterError
+from mitsuba_whitted.integrators import sequence
+from validation.scenes import GLASS_BOX, camera, diffuse, floor, point_light, scene, sphere
+
+
+def render(description_or_scene, **settings):
+    loaded = (mi.load_dict(description_or_scene) if isinstance(description_or_scene, dict)
+              else description_or_scene)
+    whitted = mi.load_dict({"type": "whitted", **settings})
+    return np.array(mi.render(loaded, integrator=whitted)), whitted
+
+
+def lit_ball(size=24):
+    """A diffuse ball on a diffuse floor under a point light, on an RGBA
+    film: the floor lights the ball's underside, which classic Whitted
+    leaves black."""
+    return scene(floor(), sphere((0, 0, 0), 0.8, diffuse(0.8, 0.5, 0.3)),
+                 point_light((1, 3, 2)),
+                 sensor=camera(origin=(0, 1, 5), size=size, crop={"pixel_format": "rgba"}))
+
+
+# ----------------------------------------------------------------- samples
+
+@pytest.mark.parametrize("pair", [0, 1, 7, 1000])
+def test_each_pair_of_sobol_dimensions_is_a_net_in_every_prefix(pair):
+    """The first 2^m samples of a pair fill every dyadic box of area 2^-m
+    once (every split of the m bits between x and y), for every m: the
+    index shuffle keeps power-of-two prefixes, and the Owen scramble keeps
+    the net."""
+    seeds = mi.UInt32([3, 12345, 0xDEADBEEF])
+    for m in (2, 4, 6):
+        count = 1 << m
+        index = dr.tile(dr.arange(mi.UInt32, count), 3)
+        lane_seeds = dr.repeat(seeds, count)
+        point = sequence.PaddedSobol(lane_seeds).point(index, pair)
+        x = np.array(point.x, dtype=np.float64).reshape(3, count)
+        y = np.array(point.y, dtype=np.float64).reshape(3, count)
+        for bits_x in range(m + 1):
+            cell = ((x * (1 << bits_x)).astype(int) << (m - bits_x)) \
+                + (y * (1 << (m - bits_x))).astype(int)
+            for row in cell:
+                assert sorted(row) == list(range(count)), (m, bits_x)
+
+
+def test_pairs_and_seeds_give_uncorrelated_uniform_points():
+    """Across many seeds, each coordinate is uniform (mean 1/2, variance
+    1/12) and two pairs of the same sample are uncorrelated."""
+    seeds = dr.arange(mi.UInt32, 1 << 16) * 7919
+    generator = sequence.PaddedSobol(seeds)
+    first = generator.point(mi.UInt32(3), 0)
+    second = generator.point(mi.UInt32(3), 1)
+    values = np.array([first.x, first.y, second.x, second.y], dtype=np.float64)
+    standard_error = np.sqrt(1 / 12 / values.shape[1])
+    assert np.all(np.abs(values.mean(axis=1) - 0.5) < 5 * standard_error)
+    assert np.all(np.abs(values.var(axis=1) - 1 / 12) < 0.01)
+    correlation = np.corrcoef(values)
+    assert np.all(np.abs(correlation - np.eye(4)) < 5 / np.sqrt(values.shape[1]))
+
+
+# ------------------------------------------------------------- the render
+
+def test_gathering_converges_to_path_on_a_lit_ball():
+    """The image mean within a few standard errors of path's (4096 spp),
+    where classic Whitted lacks the light from the floor."""
+    loaded = mi.load_dict(lit_ball())
+    image, _ = render(loaded, indirect_samples=256, max_depth=6, aa="grid", aa_samples=4)
+    classic, _ = render(loaded, max_depth=6, aa="grid", aa_samples=4)
+    path = mi.load_dict({"type": "path", "max_depth": 6})
+    passes = np.stack([np.array(mi.render(loaded, integrator=path, spp=256, seed=s))[..., :3]
+                       for s in range(16)])
+    reference = passes.mean(axis=0).mean()
+    error = passes.mean(axis=(1, 2, 3)).std(ddof=1) / np.sqrt(len(passes))
+    assert_finite(image)
+    assert abs(image[..., :3].mean() - reference) < 4 * error + 1e-3 * reference
+    assert reference - classic[..., :3].mean() > 100 * error
+
+
+def test_zero_is_classic_whitted_and_so_is_a_depth_without_room():
+    """No indirect part at 0, nor where max_depth leaves no second segment
+    past a hit (2: direct light only): the image of classic Whitted, bit
+    for bit, and no indirect rays."""
+    loaded = mi.load_dict(lit_ball())
+    classic, _ = render(loaded, max_depth=2)
+    gathered, whitted = render(loaded, max_depth=2, indirect_samples=8)
+    np.testing.assert_array_equal(classic, gathered)
+    assert whitted.last_stats["indirect"] == 0
+
+
+def test_hits_that_see_only_delta_chains_gather_nothing():
+    """A mirror ball against an empty sky: no smooth hit, no indirect path."""
+    mirror = scene(sphere((0, 0, 0), 1, {"type": "conductor"}), point_light((2, 2, 2)),
+                   sky={"type": "constant"}, sensor=camera(size=16))
+    _, whitted = render(mirror, indirect_samples=16)
+    assert whitted.last_stats["indirect"] == 0
+    image, lit = render(lit_ball(size=16), indirect_samples=16)
+    # Every surface there is diffuse: each camera ray that hits starts 16
+    # paths of at least one ray each.
+    hits = int((image[..., 3] > 0).sum())
+    assert hits > 100
+    assert lit.last_stats["indirect"] >= 16 * hits
+
+
+def test_the_same_input_gives_the_same_bits_and_seeds_differ():
+    loaded = small_glass_box()
+    whitted = mi.load_dict({"type": "whitted", "indirect_samples": 4})
+    first = np.array(mi.render(loaded, integrator=whitted, seed=3))
+    again = np.array(mi.render(loaded, integrator=whitted, seed=3))
+    other = np.array(mi.render(loaded, integrator=whitted, seed=4))
+    np.testing.assert_array_equal(first, again)
+    assert np.abs(first - other).max() > 0
+    assert_finite(first)
+
+
+def small_glass_box():
+    """The closed box with glass, a mirror and a point light, small enough
+    to render in a test."""
+    return load_file(GLASS_BOX, res="24")
+
+
+def test_both_tracers_trace_the_same_paths():
+    """The wavefront tracer (which a capturing render uses) and the
+    depth-first one walk the same trees with the same samples: equal to
+    float rounding, but where rounding sends a path another way."""
+    loaded = small_glass_box()
+    settings = {"type": "whitted", "indirect_samples": 4, "max_depth": 6}
+    depth_first = mi.load_dict(settings)
+    wavefront = mi.load_dict(settings)
+    wavefront.capture_rays = True
+    a = np.array(mi.render(loaded, integrator=depth_first))
+    b = np.array(mi.render(loaded, integrator=wavefront))
+    close = np.isclose(a, b, rtol=1e-3, atol=1e-5).all(axis=-1)
+    assert close.mean() > 0.99, close.mean()
+    assert abs(a.mean() - b.mean()) < 1e-3 * a.mean()
+    assert depth_first.last_stats["indirect"] == pytest.approx(
+        wavefront.last_stats["indirect"], rel=1e-3)
+
+
+def test_a_gradient_is_refused_in_one_sentence():
+    loaded = mi.load_dict(lit_ball(size=8))
+    whitted = mi.load_dict({"type": "whitted", "indirect_samples": 2})
+    params = mi.traverse(loaded)
+    key = next(k for k in params.keys() if k.endswith("reflectance.value"))
+    dr.enable_grad(params[key])
+    params.update()
+    image = mi.render(loaded, params, integrator=whitted)
+    with pytest.raises(ParameterError, match="indirect_samples"):
+        dr.backward(image)
+
+
+def test_an_ambient_term_with_indirect_light_warns_once(tmp_path):
+    path = tmp_path / "scene.xml"
+    path.write_text(GLASS_BOX.read_text().replace(
+        '<integer name="indirect_samples" value="$indirect_samples"/>',
+        '<integer name="indirect_samples" value="1"/><rgb name="ambient" value="0.1"/>'))
+    (tmp_path / "out").mkdir()
+    result = cli("render", str(path), "-o", str(tmp_path / "out" / "x.exr"), "-D", "res=16")
+    assert result.returncode == 0, result.stderr
+    warnings = [line for line in result.stderr.splitlines() if "indirect_samples > 0" in line]
+    assert len(warnings) == 1 and "ambient" in warnings[0], result.stderr
+
+
+def test_a_bad_count_from_the_command_line_is_one_sentence(tmp_path):
+    """(Loading, XML and updates: ``test_plugin_parameters``.)"""
+    result = cli("render", str(GLASS_BOX), "-o", str(tmp_path / "x.png"), "-D",
+                 "indirect_samples=-2")
+    assert result.returncode == 2
+    assert "indirect_samples" in one_line(result.stderr)
