@@ -26,7 +26,7 @@ WIDTH, HEIGHT = 6, 4
 EDGE = 2 + 1 / 3
 
 
-def edge_shader(positions, keys):
+def edge_shader(positions, keys, lens=None, share=1):
     """White left of the edge, black right of it."""
     white = mi.Float(positions.x < EDGE)
     return mi.Color3f(white), dr.ones(mi.Float, dr.width(positions))
@@ -78,7 +78,7 @@ def test_extra_samples_only_in_edge_pixels():
     assert samples.sum() == count.samples
 
 
-def noise_shader(positions, keys):
+def noise_shader(positions, keys, lens=None, share=1):
     """A colour that differs at every sample: the worst case."""
     a, b = mi.sample_tea_32(mi.UInt32(positions.x * 4096), mi.UInt32(positions.y * 4096))
     return mi.Color3f(mi.Float(a & 1), mi.Float(b & 1), 0.5), dr.ones(mi.Float, dr.width(positions))
@@ -186,7 +186,7 @@ def half_plane_shader(normal, offset):
     """White where ``normal . (x, y) < offset`` (pixel units)."""
     nx, ny, c = (dr.opaque(mi.Float, v) for v in (*normal, offset))
 
-    def shade(positions, keys):
+    def shade(positions, keys, lens=None, share=1):
         white = mi.Float(nx * positions.x + ny * positions.y < c)
         return mi.Color3f(white), dr.ones(mi.Float, dr.width(positions))
     return shade

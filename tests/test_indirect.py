@@ -117,6 +117,24 @@ def test_hits_that_see_only_delta_chains_gather_nothing():
     assert lit.last_stats["indirect"] >= 16 * hits
 
 
+def test_a_hit_seen_through_a_dim_filter_gathers_with_that_share_of_the_paths():
+    """Behind a sheet that passes a quarter of the light unbent (a
+    dielectric of index 1), every hit gathers with a quarter of the paths
+    (rounded at random): its noise reaches the pixel at a quarter of the
+    weight. Same geometry, so the rays per path are alike."""
+    sheet = {"type": "rectangle", "to_world": mi.ScalarTransform4f().translate([0, 0, 4]),
+             "bsdf": {"type": "dielectric", "int_ior": 1.0, "ext_ior": 1.0,
+                      "specular_transmittance": {"type": "rgb", "value": [0.25] * 3}}}
+    open_view, filtered = lit_ball(size=32), lit_ball(size=32)
+    filtered["sheet"] = sheet
+    image, direct = render(open_view, indirect_samples=16)
+    dimmed, behind = render(filtered, indirect_samples=16)
+    assert behind.last_stats["refraction"] > 0
+    ratio = behind.last_stats["indirect"] / direct.last_stats["indirect"]
+    assert ratio == pytest.approx(0.25, rel=0.1)
+    assert_finite(dimmed)
+
+
 def test_the_same_input_gives_the_same_bits_and_seeds_differ():
     loaded = small_glass_box()
     whitted = mi.load_dict({"type": "whitted", "indirect_samples": 4})

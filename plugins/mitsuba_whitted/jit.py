@@ -21,25 +21,27 @@ def index_range(start: int, stop: int) -> "mi.UInt32":
 
 
 def in_launches(total: int, launch: int, run, done=None) -> tuple:
-    """Radiance (``mi.Color3f``) and alpha (``mi.Float``) of ``total``
-    items, at most ``launch`` at a time: ``run(start, stop, part)`` gives
-    those of items ``start`` to ``stop - 1``, ``part`` being their indices
+    """The arrays ``run`` gives (radiance, alpha, ...) for ``total`` items,
+    at most ``launch`` at a time: ``run(start, stop, part)`` gives those of
+    items ``start`` to ``stop - 1``, ``part`` being their indices
     (``index_range(start, stop)``), or ``None`` where all the items fit in
     one launch, which then needs no copies in and out. Launch by launch,
     the parts are scattered into arrays of the whole, and ``done(stop)``
     is called after each."""
     if total <= launch:
         return run(0, total, None)
-    radiance, alpha = dr.empty(mi.Color3f, total), dr.empty(mi.Float, total)
+    wholes = None
     for start in range(0, total, launch):
         stop = min(start + launch, total)
         part = index_range(start, stop)
-        part_radiance, part_alpha = run(start, stop, part)
-        dr.scatter(radiance, part_radiance, part)
-        dr.scatter(alpha, part_alpha, part)
+        parts = run(start, stop, part)
+        if wholes is None:
+            wholes = tuple(dr.empty(type(value), total) for value in parts)
+        for whole, value in zip(wholes, parts):
+            dr.scatter(whole, value, part)
         if done is not None:
             done(stop)
-    return radiance, alpha
+    return wholes
 
 
 def unit_pair(value: "mi.UInt32", salt, rounds: int = 4) -> tuple:

@@ -42,10 +42,15 @@ from . import lens as lens_points
 #: Offsets (dy, dx) of a pixel's 8 neighbours.
 NEIGHBOURS = tuple((dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx) != (0, 0))
 
-#: ``shade(positions, keys) -> (radiance, alpha)``: positions are in pixel
-#: units inside the crop window, keys identify samples for decorrelation.
-#: A shader may say how many samples it traces in one launch (``batch``).
-ShadeFn = Callable[["mi.Point2f", "mi.UInt32"], tuple]
+#: ``shade(positions, keys, lens=None, share=1) -> (radiance, alpha)``, or
+#: ``(radiance, alpha, decision)``: positions are in pixel units inside the
+#: crop window, keys identify samples for decorrelation, ``share`` is how
+#: many camera samples of the pattern cover a pixel (among which a pixel's
+#: indirect paths are shared). ``decision``, where given, is the radiance
+#: the patterns decide refinement by: the noiseless part of ``radiance``,
+#: so that noise does not read as contrast. A shader may say how many
+#: samples it traces in one launch (``batch``).
+ShadeFn = Callable[..., tuple]
 
 
 @dataclass(frozen=True)
@@ -123,14 +128,18 @@ class SampleBudget:
                 "'aa_budget' or 'aa_threshold'")
 
 
-def _traced(shade: ShadeFn, positions: mi.Point2f, keys: mi.UInt32, lens=None) -> tuple:
-    """``shade``'s radiance and alpha, every component full width: the
-    samplers scatter refined values into them, and a scatter into a
-    component broadcast from width 1 (a shader returning ``Color3f(r, g,
-    0.5)``) writes past its one entry and corrupts the heap. ``lens``: the
-    samples' lens points, for cameras with an aperture."""
-    radiance, alpha = shade(positions, keys) if lens is None else shade(positions, keys, lens)
-    return full_width(radiance, dr.width(positions)), full_width(alpha, dr.width(positions))
+def _traced(shade: ShadeFn, positions: mi.Point2f, keys: mi.UInt32, lens=None,
+            share: int = 1) -> tuple:
+    """``shade``'s radiance, alpha and decision radiance (its radiance where
+    it gives none), every component full width: the samplers scatter
+    refined values into them, and a scatter into a component broadcast from
+    width 1 (a shader returning ``Color3f(r, g, 0.5)``) writes past its one
+    entry and corrupts the heap. ``lens``: the samples' lens points, for
+    cameras with an aperture; ``share``: samples per pixel (``ShadeFn``)."""
+    radiance, alpha, *decision = shade(positions, keys, lens, share)
+    width = dr.width(positions)
+    radiance, alpha = full_width(radiance, width), full_width(alpha, width)
+    return radiance, alpha, full_width(decision[0], width) if decision else radiance
 
 
 def _grid_positions(width: int, first_pixel: int, pixels: int, n: int, lens: bool = False):
@@ -178,8 +187,8 @@ def _grid_means(band: Band, start: int, pixels: int, n: int, shade: ShadeFn,
                 lens: bool) -> tuple:
     """Mean radiance and alpha of ``pixels`` pixels of ``band`` from its
     ``start``-th on."""
-    radiance, alpha = _traced(shade, *_grid_positions(band.width, band.first_pixel + start,
-                                                      pixels, n, lens))
+    radiance, alpha, _ = _traced(shade, *_grid_positions(band.width, band.first_pixel + start,
+                                                         pixels, n, lens), share=n * n)
     if n == 1:
         return radiance, alpha
     return _block_means(radiance, alpha, n * n)
@@ -293,10 +302,11 @@ class AdaptiveSampler:
                 lens_origins = _quadrant_lens_cells(origins, lens_origins, size)
                 spread = lens_points.jitter(lens_points.position_seed(positions), mi.UInt32(0))
                 lens = mi.Point2f(lens_origins + spread * opaque_float(size / 2))
-            radiance, alpha = _traced(shade, positions, keys, lens)
+            radiance, alpha, decision = _traced(shade, positions, keys, lens,
+                                                share=4 ** (len(levels) + 1))
             count.samples += dr.width(positions)
             count.per_level += (dr.width(positions),)
-            cells = self._cells_to_split(radiance, len(levels), count, band.pixels)
+            cells = self._cells_to_split(decision, len(levels), count, band.pixels)
             levels.append((radiance, alpha, cells))
             if cells is None:
                 break
@@ -397,7 +407,7 @@ class ContrastSampler:
         positions, lens = _pattern_positions(refined + dr.opaque(mi.UInt32, band.first_pixel),
                                              band.width, samples, self.lens)
         keys = index_range(first_refined_key, first_refined_key + dr.width(positions))
-        fine_radiance, fine_alpha = _traced(shade, positions, keys, lens)
+        fine_radiance, fine_alpha, _ = _traced(shade, positions, keys, lens, share=samples)
         fine_radiance, fine_alpha = _block_means(fine_radiance, fine_alpha, samples)
         dr.scatter(radiance, fine_radiance, refined)
         dr.scatter(alpha, fine_alpha, refined)
@@ -413,9 +423,9 @@ class ContrastSampler:
         """Radiance, alpha and neighbourhood contrast of the centre of each
         pixel of ``band``."""
         widened = band.widened(1)
-        radiance, alpha = _traced(shade, *_grid_positions(band.width, widened.first_pixel,
-                                                          widened.pixels, 1, lens))
-        contrast = neighbourhood_contrast(radiance, alpha, band.width, widened.rows)
+        radiance, alpha, decision = _traced(shade, *_grid_positions(
+            band.width, widened.first_pixel, widened.pixels, 1, lens))
+        contrast = neighbourhood_contrast(decision, alpha, band.width, widened.rows)
         if widened == band:
             return radiance, alpha, contrast
         start = band.first_pixel - widened.first_pixel

@@ -145,35 +145,36 @@ class DepthFirstTracer(Tracer):
         self._deepest = dr.opaque(mi.UInt32, 0, 1)
 
     def trace(self, rays: RayBatch):
-        """Radiance and alpha (primary hit) of each ray."""
+        """Radiance and alpha (primary hit) of each ray, and with indirect
+        light its gathered part (see ``Tracer.trace``)."""
         self._count_batch(len(rays))
         return self._launch_ray_kernel(self.shader.scene, self._kernel_inputs,
-                                       *rays.fields())
+                                       *rays.fields(), rays.paths)
 
     def trace_camera(self, sensor: mi.Sensor, positions: mi.Point2f, keys: mi.UInt32,
-                     lens: mi.Point2f = None):
-        """Radiance and alpha of camera rays through ``positions`` from
-        ``lens`` (see ``camera_rays``), made inside the kernel (no ray
-        arrays go through memory) where Dr.Jit can freeze the sensor's ray
-        generation."""
+                     lens: mi.Point2f = None, paths: mi.UInt32 = None):
+        """``trace`` of camera rays through ``positions`` from ``lens`` (see
+        ``camera_rays``), made inside the kernel (no ray arrays go through
+        memory) where Dr.Jit can freeze the sensor's ray generation."""
         self._count_batch(dr.width(keys))
         self._save_totals(self._camera_kernel)
         return self._camera_kernel(dr.width(keys), self.shader.scene, sensor,
                                    self._kernel_inputs, self._counts, self._deepest,
-                                   positions, keys, lens)
+                                   positions, keys, lens, paths)
 
     def _trace_camera_rays(self, scene, sensor, inputs, counts, deepest, positions, keys,
-                           lens):
+                           lens, paths):
         """The camera kernel's result, its rays made outside the kernel and
         passed in through memory (for the sensors whose members Mitsuba
         3.9.1 does not expose to ``dr.freeze``: orthographic, thin lens)."""
         ray, weight = camera_rays(sensor, positions, lens)
-        return self._launch_ray_kernel(scene, inputs, ray.o, ray.d, mi.Color3f(weight), keys)
+        return self._launch_ray_kernel(scene, inputs, ray.o, ray.d, mi.Color3f(weight), keys,
+                                       paths)
 
-    def _launch_ray_kernel(self, scene, inputs, o, d, throughput, key):
+    def _launch_ray_kernel(self, scene, inputs, o, d, throughput, key, paths):
         self._save_totals(self._kernel)
         return self._kernel(dr.width(key), scene, inputs, self._counts, self._deepest,
-                            o, d, throughput, key)
+                            o, d, throughput, key, paths)
 
     def _count_batch(self, rays: int) -> None:
         self.stats.camera += rays
@@ -199,28 +200,33 @@ class DepthFirstTracer(Tracer):
         return super().statistics()
 
     def _trace_camera_kernel(self, scene, sensor, inputs, counts, deepest, positions, keys,
-                             lens):
+                             lens, paths):
         ray, weight = camera_rays(sensor, positions, lens)
         return self._trace_kernel(scene, inputs, counts, deepest, ray.o, ray.d,
-                                  mi.Color3f(weight), keys)
+                                  mi.Color3f(weight), keys, paths)
 
     @dr.syntax
-    def _trace_kernel(self, scene, inputs, total_counts, total_deepest, o, d, throughput, key):
-        """Radiance and alpha of each ray; adds its tree's rays by kind to
-        ``total_counts`` and its deepest generation to ``total_deepest``."""
+    def _trace_kernel(self, scene, inputs, total_counts, total_deepest, o, d, throughput, key,
+                      paths):
+        """Radiance and alpha of each ray, and the gathered part of its
+        radiance where the tree gathers indirect light (``paths`` per hit,
+        per lane; ``None``: the integrator's count); adds its tree's rays by
+        kind to ``total_counts`` and its deepest generation to
+        ``total_deepest``."""
         stack = LaneStack.allocate(
             (mi.Point3f, mi.Vector3f, mi.Color3f, mi.UInt32, mi.UInt32), self.capacity)
         size = mi.UInt32(0)
         ray = (o, d, throughput, key, mi.UInt32(0))
         live = mi.Bool(True)
         radiance = mi.Color3f(0)
+        gathered = mi.Color3f(0)
         alpha = mi.Float(0)
         counts = {kind: mi.UInt32(0) for kind in COUNTED}
         deepest = mi.UInt32(0)
         visited = mi.UInt32(0)
         while live:
-            size, ray, live, radiance, alpha, counts, deepest = self._visit(
-                stack, size, ray, radiance, alpha, counts, deepest)
+            size, ray, live, radiance, gathered, alpha, counts, deepest = self._visit(
+                stack, size, ray, radiance, gathered, alpha, counts, deepest, paths)
             # A tree stops at MAX_TREE_RAYS rays; what is still pending is
             # left untraced and counted.
             visited += 1
@@ -231,9 +237,9 @@ class DepthFirstTracer(Tracer):
         for index, kind in enumerate(COUNTED):
             dr.scatter_reduce(dr.ReduceOp.Add, total_counts, counts[kind], mi.UInt32(index))
         dr.scatter_reduce(dr.ReduceOp.Max, total_deepest, deepest, mi.UInt32(0))
-        return radiance, alpha
+        return (radiance, alpha) + ((gathered,) if self.shader.indirect is not None else ())
 
-    def _visit(self, stack, size, ray, radiance, alpha, counts, deepest):
+    def _visit(self, stack, size, ray, radiance, gathered, alpha, counts, deepest, paths):
         """Trace ``ray``: add its radiance, and go on with its last child
         while the others wait on the stack (the order of a plain depth-first
         walk, without storing the ray that is traced next); a lane with no
@@ -247,18 +253,21 @@ class DepthFirstTracer(Tracer):
         counts = dict(counts)
         if self.refiner is not None:
             counts["refined"] += mi.UInt32(self.refiner.on_proxy(si, hit))
-        local, shadow, indirect, children = self.shader.shade(
-            si, traced, weight, key, self.shader.work(generation), generation)
-        if local is not None:
-            radiance = radiance + local
-        if shadow is not None:
-            counts["shadow"] += shadow.tested
-            counts["shadow_march"] += shadow.marched
-        if indirect is not None:
-            counts["indirect"] += indirect.traced
-            counts["indirect_shadow"] += indirect.shadow
+        shaded = self.shader.shade(si, traced, weight, key, self.shader.work(generation),
+                                   generation, paths)
+        if shaded.local is not None:
+            radiance = radiance + shaded.local
+        if shaded.gathered is not None:
+            radiance = radiance + shaded.gathered
+            gathered = gathered + shaded.gathered
+        if shaded.shadow is not None:
+            counts["shadow"] += shaded.shadow.tested
+            counts["shadow_march"] += shaded.shadow.marched
+        if shaded.indirect_rays is not None:
+            counts["indirect"] += shaded.indirect_rays.traced
+            counts["indirect_shadow"] += shaded.indirect_rays.shadow
         live = mi.Bool(False)
-        for child in children:
+        for child in shaded.children:
             valid = child.code != 0
             # An earlier child is superseded by this one: it waits.
             size = stack.push(size, ray, live & valid)
@@ -268,4 +277,4 @@ class DepthFirstTracer(Tracer):
             for kind, code in KIND_CODES.items():
                 counts[kind] += mi.UInt32(child.code == code)
         ray, size, popped = stack.pop(size, ray, ~live & (size > 0))
-        return size, ray, live | popped, radiance, alpha, counts, deepest
+        return size, ray, live | popped, radiance, gathered, alpha, counts, deepest

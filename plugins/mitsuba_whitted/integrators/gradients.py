@@ -306,12 +306,12 @@ def recording_shader(base, tangent=None):
     until the caller has the band's adjoints and empties it."""
 
     class RecordingShader(base):
-        def __init__(self, tracer, sensor, progress=None):
-            super().__init__(tracer, sensor, progress)
+        def __init__(self, tracer, sensor, progress=None, indirect_samples=0):
+            super().__init__(tracer, sensor, progress, indirect_samples)
             self.launches = []
 
-        def __call__(self, positions, keys, lens=None):
-            radiance, alpha = super().__call__(positions, keys, lens)
+        def __call__(self, positions, keys, lens=None, share=1):
+            radiance, alpha = super().__call__(positions, keys, lens, share)
             leaf = mi.Color3f(radiance)
             dr.enable_grad(leaf)
             if tangent is not None:

@@ -19,9 +19,16 @@ that light with N paths:
   sample of the whole BSDF, delta lobes included. Where the BSDF's
   direction reaches emission, the two strategies are weighed by the power
   heuristic (Veach 1995); delta lobes and delta lights take weight 1.
+- A hit gathers with as many paths as its camera sample was given (a
+  pixel's ``indirect_samples`` shared among its camera samples) times the
+  throughput of the tree to the hit: a wall seen in a 4% Fresnel
+  reflection adds 4% of its light to the pixel, and its noise matters that
+  much less, so it gathers with that share of the paths. Counts are
+  rounded up or down at random, keeping their mean, and are at least one,
+  so that every hit's indirect light is estimated without bias.
 - Russian roulette ends paths that carry little from their third vertex
   on, by the product of the tree's throughput and the path's, so a hit
-  seen in a dim reflection spends little on long paths.
+  seen in a dim reflection spends little on long paths too.
 - The samples come from Owen-scrambled Sobol points (:mod:`.sequence`),
   seeded by the hit's key and the render seed: deterministic, as the rest.
 
@@ -43,7 +50,7 @@ import mitsuba as mi
 
 from .offsets import spawn_ray
 from .scene_ref import ReadsScene
-from .sequence import PaddedSobol, mix
+from .sequence import PaddedSobol, mix, to_unit
 
 #: Paths start Russian roulette at this vertex (0 is the tree's hit).
 ROULETTE_FROM = 2
@@ -54,6 +61,16 @@ ROULETTE_CAP = 0.95
 PAIRS_PER_VERTEX = 3
 #: A direction this close to the incoming one is "straight through".
 STRAIGHT_COSINE = 1.0 - 1e-5
+#: Mixed into a key for the rounding of a path count, so that the rounding
+#: is independent of the paths' own samples.
+_ROUNDING_SALT = 0x5BD1E995
+
+
+def share_paths(wanted: mi.Float, key: mi.UInt32) -> mi.UInt32:
+    """``wanted`` paths rounded up or down at random (by a hash of ``key``)
+    so that the mean is kept, and at least one."""
+    rounding = to_unit(mix(key ^ _ROUNDING_SALT))
+    return dr.maximum(mi.UInt32(dr.floor(wanted + rounding)), 1)
 
 
 @dataclass
@@ -92,11 +109,16 @@ class IndirectLight(ReadsScene):
 
     @dr.syntax
     def estimate(self, si: mi.SurfaceInteraction3f, key: mi.UInt32, throughput: mi.Color3f,
-                 active: mi.Bool, segments):
+                 active: mi.Bool, segments, count=None):
         """Indirect radiance leaving ``si`` towards ``-ray`` (not yet times
-        ``throughput``, which only steers the roulette), and the rays cast.
+        ``throughput``), and the rays cast. The radiance is the mean of
+        ``count`` paths (per lane; ``None``: ``samples``) times the tree's
+        ``throughput`` to the hit, rounded (:func:`share_paths`).
         ``segments``: per lane, how many segments a path from ``si`` may
         have (``max_depth`` less those of the camera path to ``si``)."""
+        count = share_paths(
+            mi.Float(self.samples if count is None else count)
+            * dr.minimum(dr.max(throughput), 1), key)
         sequence = PaddedSobol(mix(key ^ self.salt))
         total = mi.Color3f(0)
         rays = IndirectRays(mi.UInt32(0), mi.UInt32(0))
@@ -138,8 +160,8 @@ class IndirectLight(ReadsScene):
             here = dr.select(go, hit, here)
             vertex = dr.select(go, vertex + 1, 0)
             sample[~go] = sample + 1
-            active &= go | (sample < self.samples)
-        return total / self.samples, rays
+            active &= go | (sample < count)
+        return total / mi.Float(count), rays
 
     def _step(self, here, start, u_light, u_lobe, u_direction, active):
         """At ``here``: the light of one emitter sample (none at the tree's

@@ -9,7 +9,7 @@ their trees.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import drjit as dr
 import mitsuba as mi
@@ -46,6 +46,20 @@ class HitWork:
 
     def any(self) -> bool:
         return any(part is not False for part in (self.emit, self.light, self.spawn))
+
+
+@dataclass
+class Shaded:
+    """What a hit adds, each ``None`` where its work is left out: radiance
+    (times the ray's throughput) from emission and the lights, the indirect
+    radiance gathered (:mod:`.indirect`, times the throughput too), the
+    shadow rays of each lane (``ShadowRays``), the rays of the indirect
+    paths (``IndirectRays``), and one :class:`Child` per component."""
+    local: mi.Color3f = None
+    gathered: mi.Color3f = None
+    shadow: object = None
+    indirect_rays: object = None
+    children: list = field(default_factory=list)
 
 
 @dataclass
@@ -100,29 +114,29 @@ class HitShader(ReadsScene):
             gather=(self.indirect is not None and light is not False
                     and light & (generation + 3 <= depth)))
 
-    def shade(self, si, ray, throughput, key, work: HitWork, generation=0):
-        """Radiance (times ``throughput``, ``None`` if nothing adds any),
-        the shadow rays of each lane (``ShadowRays``, ``None`` without
-        light work), the rays of the indirect paths (``IndirectRays``,
-        ``None`` without them) and one :class:`Child` per component.
-        ``generation``: the hit's (an int, or per lane)."""
-        local = shadow = indirect = None
-        children = []
+    def shade(self, si, ray, throughput, key, work: HitWork, generation=0,
+              count=None) -> "Shaded":
+        """What the hits of ``ray`` add (:class:`Shaded`). ``generation``:
+        the hits' (an int, or per lane); ``count``: indirect paths per hit
+        (per lane; ``None``: the integrator's ``indirect_samples``)."""
+        shaded = Shaded()
+        local = None
         if work.emit is not False:
             # Misses see the environment emitter, if any.
             local = si.emitter(self.scene).eval(si, mi.Bool(work.emit))
         if work.light is not False or work.spawn is not False:
-            reflected, shadow, children, light = self._scatter(si, ray, throughput, key, work)
+            reflected, shaded.shadow, shaded.children, light = self._scatter(
+                si, ray, throughput, key, work)
             if reflected is not None:
                 local = reflected if local is None else local + reflected
             if work.gather is not False:
-                gathered, indirect = self.indirect.estimate(
+                gathered, shaded.indirect_rays = self.indirect.estimate(
                     si, key, throughput, light & work.gather,
-                    self.settings.max_depth - generation - 1)
-                local = gathered if local is None else local + gathered
+                    self.settings.max_depth - generation - 1, count)
+                shaded.gathered = gathered * throughput
         if local is not None:
-            local = local * throughput
-        return local, shadow, indirect, children
+            shaded.local = local * throughput
+        return shaded
 
     def _scatter(self, si, ray, throughput, key, work: HitWork):
         """What the hit's BSDF adds: light reflected from the lights, the

@@ -62,10 +62,13 @@ class RayStats:
 
 
 class RayBatch:
-    """Rays of one generation: origin, direction, throughput, hash key."""
+    """Rays of one generation: origin, direction, throughput, hash key, and
+    the indirect paths each of its hits gathers (``None``: the integrator's
+    ``indirect_samples``)."""
 
-    def __init__(self, o, d, throughput, key):
+    def __init__(self, o, d, throughput, key, paths=None):
         self.o, self.d, self.throughput, self.key = o, d, throughput, key
+        self.paths = paths
 
     def __len__(self) -> int:
         return dr.width(self.key)
@@ -74,7 +77,8 @@ class RayBatch:
         return RayBatch(dr.gather(mi.Point3f, self.o, index),
                         dr.gather(mi.Vector3f, self.d, index),
                         dr.gather(mi.Color3f, self.throughput, index),
-                        dr.gather(mi.UInt32, self.key, index))
+                        dr.gather(mi.UInt32, self.key, index),
+                        None if self.paths is None else dr.gather(mi.UInt32, self.paths, index))
 
     def fields(self):
         return self.o, self.d, self.throughput, self.key
@@ -95,7 +99,9 @@ class CapturedBatch:
 
 class Tracer:
     """What both tracers hold: ``trace(rays)`` gives radiance and alpha
-    (primary hit) of camera rays and adds to ``stats``. ``wavefront_size``:
+    (primary hit) of camera rays, and where the shader gathers indirect
+    light the part of the radiance it gathered (a third value), and adds
+    to ``stats``. ``wavefront_size``:
     the most rays of one generation the wavefront tracer keeps at once, the
     unit of both tracers' launch sizes."""
 
@@ -136,11 +142,12 @@ class Tracer:
         return self.camera_batch
 
     def trace_camera(self, sensor: mi.Sensor, positions: mi.Point2f, keys: mi.UInt32,
-                     lens: mi.Point2f = None):
+                     lens: mi.Point2f = None, paths: mi.UInt32 = None):
         """``trace`` of the camera rays through ``positions`` (pixel units
-        in the crop window) from ``lens`` (see ``camera_rays``)."""
+        in the crop window) from ``lens`` (see ``camera_rays``), gathering
+        ``paths`` indirect paths per hit."""
         ray, weight = camera_rays(sensor, positions, lens)
-        return self.trace(RayBatch(ray.o, ray.d, mi.Color3f(weight), keys))
+        return self.trace(RayBatch(ray.o, ray.d, mi.Color3f(weight), keys, paths))
 
     def statistics(self) -> dict:
         """Rays traced since the last ``reload``, by kind."""

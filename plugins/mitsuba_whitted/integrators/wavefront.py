@@ -52,7 +52,9 @@ class WavefrontTracer(Tracer):
         return self.camera_batch * (1 + self.fan_out)
 
     def trace(self, rays: RayBatch):
-        """Radiance and alpha (primary hit) of each camera ray.
+        """Radiance and alpha (primary hit) of each camera ray, and the part
+        of the radiance gathered as indirect light where there is some
+        (``Tracer.trace``).
 
         Depth first over parts of at most ``wavefront_size`` rays, with the
         generations whose children are still being traced on a list rather
@@ -68,7 +70,7 @@ class WavefrontTracer(Tracer):
             elif not pending:
                 return result
             else:
-                pending[-1].fold(result[0])
+                pending[-1].fold(result)
             part = pending[-1].next_part(self.wavefront_size)
             if part is None:
                 result = pending.pop().radiance()
@@ -76,7 +78,8 @@ class WavefrontTracer(Tracer):
             children = pending[-1].children.take(part)
             if len(children) > rays_left:
                 self.stats.cut += len(children)
-                result = dr.zeros(mi.Color3f, len(children)), None
+                result = (dr.zeros(mi.Color3f, len(children)), None,
+                          *self._no_gathering(len(children)))
             else:
                 rays_left -= len(children)
                 result = self._visit(children, pending[-1].generation + 1)
@@ -87,12 +90,17 @@ class WavefrontTracer(Tracer):
         self.stats.batches += 1
         self.stats.generations = max(self.stats.generations, generation + 1)
         log = self._shadow_log(len(rays), generation)
-        local, alpha, children, slots = self._shade(rays, generation, log)
+        local, alpha, gathered, children, slots = self._shade(rays, generation, log)
         if self.captured is not None:
             self.captured.append(CapturedBatch(generation, rays, *_logged_rays(log)))
         if children is None:
-            return local, alpha
-        return _Generation(generation, local, alpha, children, slots, self.fan_out)
+            return (local, alpha) + gathered
+        return _Generation(generation, local, alpha, gathered, children, slots, self.fan_out)
+
+    def _no_gathering(self, lanes: int) -> tuple:
+        """The gathered radiance of ``lanes`` rays that gather none: zeros
+        where the shader gathers indirect light, else nothing."""
+        return () if self.shader.indirect is None else (dr.zeros(mi.Color3f, lanes),)
 
     def _shadow_log(self, lanes: int, generation: int):
         """Where a capturing render's shadow test writes the rays of a batch
@@ -106,23 +114,26 @@ class WavefrontTracer(Tracer):
                                    marching=not lighting.shadows.opaque)
 
     def _shade(self, rays: RayBatch, generation: int, log):
-        """Local radiance and alpha of one generation, its compacted children
-        and the slot (parent x fan-out + component) of each child; the
-        shadow rays go to ``log`` where it is not ``None``."""
+        """Local radiance and alpha of one generation, its gathered radiance
+        (a tuple: empty without indirect light), its compacted children and
+        the slot (parent x fan-out + component) of each child; the shadow
+        rays go to ``log`` where it is not ``None``."""
         work = self.shader.work(generation)
         if not work.any() and generation > 0:
-            return dr.zeros(mi.Color3f, len(rays)), None, None, None
+            return (dr.zeros(mi.Color3f, len(rays)), None, self._no_gathering(len(rays)),
+                    None, None)
         # The generation as an opaque value: the indirect paths' length
         # depends on it, and one frozen kernel serves every generation.
         kernel, arguments = self._kernel(work), (len(rays), self.shader.scene,
                                                  self._kernel_inputs, *rays.fields(),
-                                                 dr.opaque(mi.UInt32, generation))
+                                                 rays.paths, dr.opaque(mi.UInt32, generation))
         outputs = kernel(*arguments, log)
         if log is not None and log.make_room():
             # Once more with room for the queries it counted: same rays, same results.
             outputs = kernel(*arguments, log)
-        local, alpha, shadow, indirect, refined, candidates = outputs
+        local, gathered, alpha, shadow, indirect, refined, candidates = outputs
         local = dr.zeros(mi.Color3f, len(rays)) if local is None else local
+        gathered = self._no_gathering(len(rays)) if gathered is None else (gathered,)
         if shadow is not None:
             tested, marched = shadow
             self.stats.shadow = self.stats.shadow + dr.sum(tested)
@@ -134,9 +145,9 @@ class WavefrontTracer(Tracer):
         if refined is not None:
             self.stats.refined = self.stats.refined + dr.sum(refined)
         if not candidates:
-            return local, alpha, None, None
-        children, slots = self._compact(candidates)
-        return local, alpha, children, slots
+            return local, alpha, gathered, None, None
+        children, slots = self._compact(candidates, rays.paths is not None)
+        return local, alpha, gathered, children, slots
 
     def _kernel(self, work: HitWork):
         """``kernel(width, *inputs)``: the generation kernel for ``work``."""
@@ -147,11 +158,13 @@ class WavefrontTracer(Tracer):
                                                   work)
         return self._generation[work]
 
-    def _generation_kernel(self, scene, inputs, o, d, throughput, key, generation, log,
+    def _generation_kernel(self, scene, inputs, o, d, throughput, key, paths, generation, log,
                            work: HitWork):
         """Everything one generation computes, as one traced function of its
-        rays: radiance, alpha, shadow rays, indirect rays and refinements per
-        lane, and one candidate child per delta component; the shadow test writes its rays
+        rays: radiance (and the part of it gathered as indirect light, from
+        ``paths`` paths per hit), alpha, shadow rays, indirect rays and
+        refinements per lane, and one candidate child per delta component
+        (which inherits its parent's ``paths``); the shadow test writes its rays
         to ``log`` (filled in place) where it is not ``None``.
 
         It reads no sizes, so Dr.Jit can freeze it and replay its kernels for
@@ -168,19 +181,24 @@ class WavefrontTracer(Tracer):
         if self.refiner is not None:
             refined = mi.UInt32(self.refiner.on_proxy(si, hit))
         with self.shader.lighting.shadows.logging_to(log):
-            local, shadow, indirect, children = self.shader.shade(si, ray, throughput, key,
-                                                                  work, generation)
-        if shadow is not None:
-            shadow = (shadow.tested, shadow.marched)
-        if indirect is not None:
-            indirect = (indirect.traced, indirect.shadow)
-        candidates = [(child.o, child.d, child.throughput, child.key, child.code)
-                      for child in children]
-        return local, mi.Float(hit), shadow, indirect, refined, candidates
+            shaded = self.shader.shade(si, ray, throughput, key, work, generation, paths)
+        shadow = indirect = None
+        local = shaded.local
+        if shaded.gathered is not None:
+            local = shaded.gathered if local is None else local + shaded.gathered
+        if shaded.shadow is not None:
+            shadow = (shaded.shadow.tested, shaded.shadow.marched)
+        if shaded.indirect_rays is not None:
+            indirect = (shaded.indirect_rays.traced, shaded.indirect_rays.shadow)
+        inherited = () if paths is None else (paths,)
+        candidates = [(child.o, child.d, child.throughput, child.key, *inherited, child.code)
+                      for child in shaded.children]
+        return local, shaded.gathered, mi.Float(hit), shadow, indirect, refined, candidates
 
-    def _compact(self, candidates):
-        """Children of all components in one batch; a child's slot is
-        parent x fan-out + component, so folding back is collision free."""
+    def _compact(self, candidates, with_paths: bool):
+        """Children of all components in one batch (with their indirect
+        paths per hit where ``with_paths``); a child's slot is parent x
+        fan-out + component, so folding back is collision free."""
         picks = []
         for component, (*fields, codes) in enumerate(candidates):
             index = dr.compress(codes != 0)
@@ -191,16 +209,18 @@ class WavefrontTracer(Tracer):
         if total == 0:
             return None, None
         batch = RayBatch(dr.empty(mi.Point3f, total), dr.empty(mi.Vector3f, total),
-                         dr.empty(mi.Color3f, total), dr.empty(mi.UInt32, total))
+                         dr.empty(mi.Color3f, total), dr.empty(mi.UInt32, total),
+                         dr.empty(mi.UInt32, total) if with_paths else None)
+        buffers = batch.fields() + ((batch.paths,) if with_paths else ())
         slots = dr.empty(mi.UInt32, total)
         offset = 0
         for component, index, fields in picks:
             target = index_range(offset, offset + dr.width(index))
-            for buffer, value in zip(batch.fields(), fields):
+            for buffer, value in zip(buffers, fields):
                 dr.scatter(buffer, dr.gather(type(value), value, index), target)
             dr.scatter(slots, index * self.fan_out + component, target)
             offset += dr.width(index)
-        dr.eval(*batch.fields(), slots)
+        dr.eval(*buffers, slots)
         return batch, slots
 
     def _count_children(self, kind: str, codes, count: int) -> None:
@@ -229,12 +249,17 @@ class _Generation:
     radiance is folded into its parents' slots (parent x fan-out +
     component), and summed per parent in component order once all are in."""
 
-    def __init__(self, generation: int, local, alpha, children: RayBatch, slots, fan_out: int):
+    def __init__(self, generation: int, local, alpha, gathered: tuple, children: RayBatch,
+                 slots, fan_out: int):
         self.generation = generation
         self.local, self.alpha = local, alpha
+        #: The gathered part of ``local`` (a tuple: empty without indirect
+        #: light), folded back and summed as ``local`` is.
+        self.gathered = gathered
         self.children, self.slots = children, slots
         self.fan_out = fan_out
-        self.folded = dr.zeros(mi.Color3f, dr.width(local) * fan_out)
+        self.folded = [dr.zeros(mi.Color3f, dr.width(local) * fan_out)
+                       for _ in range(1 + len(gathered))]
         self.start = 0
         self.part = None
 
@@ -247,9 +272,16 @@ class _Generation:
         self.start = stop
         return self.part
 
-    def fold(self, radiance: mi.Color3f) -> None:
-        """Put the radiance of the current part into its parents' slots."""
-        dr.scatter(self.folded, radiance, dr.gather(mi.UInt32, self.slots, self.part))
+    def fold(self, result: tuple) -> None:
+        """Put the radiance (and gathered radiance) of the current part,
+        ``result`` as a visit gives it, into its parents' slots."""
+        radiance, _, *gathered = result
+        slots = dr.gather(mi.UInt32, self.slots, self.part)
+        for folded, value in zip(self.folded, [radiance, *gathered]):
+            dr.scatter(folded, value, slots)
 
     def radiance(self) -> tuple:
-        return self.local + sum_blocks(self.folded, self.fan_out), self.alpha
+        """Radiance, alpha and gathered radiance (where there is some)."""
+        totals = [own + sum_blocks(folded, self.fan_out)
+                  for own, folded in zip((self.local, *self.gathered), self.folded)]
+        return totals[0], self.alpha, *totals[1:]

@@ -13,6 +13,7 @@ from ..parameters import LastValid, checked_numbers, describe
 from . import antialias, gradients, render_plan
 from .render_plan import Demand, RenderPlan, plan_render
 from .scene_checks import check_emitters, check_placements
+from .indirect import share_paths
 from .lighting import LightingSettings
 from .scene_needs import SceneNeeds, analyse
 from .scene_ref import identity
@@ -56,11 +57,13 @@ def _real(default: float):
     return read
 
 
-def _flag(props: mi.Properties, name: str) -> bool:
-    value = _given(props, name, False)
-    check(isinstance(value, bool), PLUGIN_NAME, name,
-          f"must be true or false (got {describe(value)})")
-    return value
+def _flag(default: bool):
+    def read(props: mi.Properties, name: str) -> bool:
+        value = _given(props, name, default)
+        check(isinstance(value, bool), PLUGIN_NAME, name,
+              f"must be true or false (got {describe(value)})")
+        return value
+    return read
 
 
 def _colour(props: mi.Properties, name: str) -> list:
@@ -75,7 +78,7 @@ SETTINGS = {
     "emitter_samples": _whole(16),
     "indirect_samples": _whole(0),
     "min_throughput": _real(1e-4),
-    "hide_emitters": _flag,
+    "hide_emitters": _flag(False),
     "aa_samples": _whole(2),
     "aa_threshold": _real(0.1),
     "aa_max_depth": _whole(3),
@@ -130,17 +133,21 @@ class WhittedIntegrator(mi.SamplingIntegrator):
          by a rotated low-discrepancy sequence. (Default: 16)
      * - indirect_samples
        - |int|
-       - Paths of indirect light per smooth hit of the ray tree: 0 is
-         classic Whitted. Above 0, each hit with a diffuse or glossy part
-         also gathers the light Whitted leaves out (interreflection,
+       - Paths of indirect light per pixel, on average: 0 is classic
+         Whitted. Above 0, each hit of the ray tree with a diffuse or glossy
+         part also gathers the light Whitted leaves out (interreflection,
          caustics from area and environment lights) by path tracing from
          that hit, with light sampling and multiple importance sampling,
          along Owen-scrambled Sobol samples; the tree keeps everything it
          does exactly (delta chains, delta lights, the shadow rays to every
-         light). Hits that see only delta chains spend nothing on it. With
-         ``ambient`` 0 and ``shadows="physical"``, the image's expectation
-         is that of Mitsuba's ``path`` at the same ``max_depth``.
-         Not differentiated. (Default: 0)
+         light). A pixel's paths are shared among its camera samples, and a
+         hit seen through a dim reflection or refraction takes fewer, in
+         proportion to the light that reaches the camera from it (at least
+         one per sample and smooth hit); pixels that see only delta chains
+         spend nothing on them. With ``ambient`` 0 and
+         ``shadows="physical"``, the image's expectation is that of
+         Mitsuba's ``path`` at the same ``max_depth``. Not differentiated.
+         (Default: 0)
      * - min_throughput
        - |float|
        - Ray-tree pruning (Hall & Greenberg 1983): a reflected or refracted
@@ -539,7 +546,8 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         total = antialias.SampleCount()
         lens = self.aa != "none" and aperture
         with tracer.scene_ref.holding(scene):
-            shade = (shader or CameraShader)(tracer, sensor, self.progress)
+            shade = (shader or CameraShader)(tracer, sensor, self.progress,
+                                             self.indirect_samples)
             for index, band in enumerate(plan.bands()):
                 shade.label = _band_label(index, plan.band_count)
                 radiance, alpha, count = self._sample_pixels(band, shade, total.refined, lens)
@@ -620,15 +628,17 @@ class WhittedIntegrator(mi.SamplingIntegrator):
                    needs: SceneNeeds = None):
         """Whitted radiance and alpha along arbitrary rays, with the tracer of
         the last render where it still fits (``needs``: see
-        ``make_tracer``; a tracer made for them is not kept)."""
+        ``make_tracer``; a tracer made for them is not kept). Each hit
+        gathers with ``indirect_samples`` paths (times its throughput)."""
         if needs is None:
             tracer = self._tracer_for(scene, seed_value(seed))
         else:
             tracer = self.make_tracer(scene, seed, needs=needs)
         keys = dr.arange(mi.UInt32, dr.width(ray.o))
         with dr.suspend_grad(), tracer.scene_ref.holding(scene):
-            return tracer.trace(RayBatch(mi.Point3f(ray.o), mi.Vector3f(ray.d),
-                                         mi.Color3f(1), keys))
+            radiance, alpha, *_ = tracer.trace(RayBatch(mi.Point3f(ray.o), mi.Vector3f(ray.d),
+                                                        mi.Color3f(1), keys))
+        return radiance, alpha
 
     def sample(self, scene, sampler, ray, medium=None, active=True):
         """Whitted radiance along arbitrary rays (no anti-aliasing)."""
@@ -679,42 +689,59 @@ class CameraShader:
     ``lens`` (see ``camera_rays``), traced in launches of at most ``batch``
     rays."""
 
-    def __init__(self, tracer, sensor: mi.Sensor, progress=None):
+    def __init__(self, tracer, sensor: mi.Sensor, progress=None, indirect_samples: int = 0):
         self.tracer = tracer
         self.sensor = sensor
         self.progress = progress
         self.batch = tracer.camera_batch
         #: What the progress display calls the samples being traced.
         self.label = "camera samples"
+        #: Indirect paths per pixel, shared among its camera samples.
+        self.indirect_samples = indirect_samples
 
-    def __call__(self, positions: mi.Point2f, keys: mi.UInt32, lens: mi.Point2f = None):
+    def __call__(self, positions: mi.Point2f, keys: mi.UInt32, lens: mi.Point2f = None,
+                 share: int = 1):
+        """Radiance and alpha of the samples, and where the tracer gathers
+        indirect light the radiance without it, the noiseless part that
+        anti-aliasing decides by (``antialias.ShadeFn``); ``share``: the
+        pattern's samples per pixel, among which a pixel's
+        ``indirect_samples`` paths are shared."""
         # The frozen kernels take the scene, whose parameters may carry
         # gradients: nothing here is differentiated (``gradients``).
         with dr.suspend_grad():
-            return self._trace(positions, keys, lens)
+            paths = None
+            if self.indirect_samples:
+                paths = share_paths(mi.Float(self.indirect_samples / share), keys)
+            radiance, alpha, *gathered = self.trace(positions, keys, lens, paths)
+            if not gathered:
+                return radiance, alpha
+            return radiance, alpha, radiance - gathered[0]
 
-    def _trace(self, positions: mi.Point2f, keys: mi.UInt32, lens: mi.Point2f = None):
+    def trace(self, positions: mi.Point2f, keys: mi.UInt32, lens: mi.Point2f = None,
+              paths: mi.UInt32 = None) -> tuple:
+        """The tracer's radiance, alpha (and gathered radiance) of the
+        camera samples, ``paths`` indirect paths per smooth hit of each."""
         total = dr.width(positions)
 
         def trace(start, stop, part):
             if part is None:
                 # The whole batch in one launch (every adaptive level after
                 # the first): no copies in and out.
-                return self.tracer.trace_camera(self.sensor, positions, keys, lens)
+                return self.tracer.trace_camera(self.sensor, positions, keys, lens, paths)
             return self.tracer.trace_camera(
                 self.sensor, dr.gather(mi.Point2f, positions, part),
                 dr.gather(mi.UInt32, keys, part),
-                None if lens is None else dr.gather(mi.Point2f, lens, part))
+                None if lens is None else dr.gather(mi.Point2f, lens, part),
+                None if paths is None else dr.gather(mi.UInt32, paths, part))
 
-        radiance, alpha = in_launches(total, self.batch, trace,
-                                      lambda stop: self._report(stop, total))
-        dr.eval(radiance, alpha)
+        outputs = in_launches(total, self.batch, trace, lambda stop: self._report(stop, total))
+        dr.eval(outputs)
         # Wait here, where Dr.Jit lets other Python threads run: the
         # samplers' next dr.compress would wait for these launches holding
         # the GIL, and Ctrl-C (see interrupt.py) with it.
         dr.sync_thread()
         self._report(total, total)
-        return radiance, alpha
+        return outputs
 
     def _report(self, done: int, total: int) -> None:
         if self.progress is not None:
