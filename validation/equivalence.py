@@ -107,13 +107,14 @@ def _cornell_box():
 
 def _lit_by_area_light():
     """A diffuse ball on a floor before a wall, under a small spherical
-    lamp: the floor and the wall light the ball and each other."""
+    lamp and a dim point light: the floor and the wall light the ball and
+    each other."""
     lamp = {"type": "sphere", "center": [-0.6, 1.6, 0.8], "radius": 0.25,
             "emitter": {"type": "area", "radiance": rgb(12, 12, 12)}}
     return scene(floor(size=3.0, bsdf=diffuse(0.7, 0.7, 0.7)),
                  wall(z=-1.2, size=3.0, bsdf=diffuse(0.2, 0.6, 0.3)),
                  sphere((0.2, -0.4, 0), 0.6, diffuse(0.8, 0.4, 0.2)), lamp,
-                 sensor=_camera(origin=(0, 1.2, 4)))
+                 point_light((1.5, 2.0, 1.5), 3.0), sensor=_camera(origin=(0, 1.2, 4)))
 
 
 def _on_sphere(bsdf, *lights):
@@ -175,7 +176,7 @@ def _indirect_cases() -> list[EquivalenceCase]:
     gathering = {"indirect_samples": INDIRECT_SAMPLES}
     scenes = {"Cornell box": _cornell_box(),
               "glass and mirror box, point light": GLASS_BOX,
-              "area light": _lit_by_area_light()}
+              "area and point lights": _lit_by_area_light()}
     cases = [EquivalenceCase(f"indirect: {name}", "indirect light gathered by path tracing "
                              "from every smooth hit", description, seeds=SAMPLED_SEEDS,
                              settings=gathering)
@@ -183,8 +184,9 @@ def _indirect_cases() -> list[EquivalenceCase]:
     cases += [EquivalenceCase("broken: glass and mirror box without indirect light",
                               "the light classic Whitted leaves out", GLASS_BOX,
                               expect_agree=False),
-              EquivalenceCase("broken: area light without indirect light", "the light classic "
-                              "Whitted leaves out", scenes["area light"], seeds=SAMPLED_SEEDS,
+              EquivalenceCase("broken: area and point lights without indirect light",
+                              "the light classic Whitted leaves out",
+                              scenes["area and point lights"], seeds=SAMPLED_SEEDS,
                               expect_agree=False)]
     return cases
 

@@ -14,11 +14,14 @@ that light with N paths:
   straight, through surfaces that let light pass without bending it (null,
   mask, index-matched and thin dielectrics), is the light the hit's own
   shadow rays counted, and is left out.
-- At every later vertex, a path tracer's step: one light sample
-  (next-event estimation, whose shadow ray any surface blocks) and one
+- At every later vertex, a path tracer's step, with every light taken
+  as the tree takes them: each delta light exactly, and one sample of each
+  area or environment light (next-event estimation, whose shadow rays any
+  surface blocks), where a path tracer picks one light at random; then one
   sample of the whole BSDF, delta lobes included. Where the BSDF's
-  direction reaches emission, the two strategies are weighed by the power
-  heuristic (Veach 1995); delta lobes and delta lights take weight 1.
+  direction reaches emission, it and that light's own sample are weighed
+  by the power heuristic (Veach 1995); delta lobes and delta lights take
+  weight 1.
 - A hit gathers with as many paths as its camera sample was given (a
   pixel's ``indirect_samples`` shared among its camera samples) times the
   throughput of the tree to the hit: a wall seen in a 4% Fresnel
@@ -56,9 +59,6 @@ from .sequence import PaddedSobol, mix, to_unit
 ROULETTE_FROM = 2
 #: Most a path survives a roulette with, so that every path ends.
 ROULETTE_CAP = 0.95
-#: Dimension pairs one vertex draws: the BSDF's direction, its lobe and the
-#: roulette, the light sample.
-PAIRS_PER_VERTEX = 3
 #: A direction this close to the incoming one is "straight through".
 STRAIGHT_COSINE = 1.0 - 1e-5
 #: Mixed into a key for the rounding of a path count, so that the rounding
@@ -106,6 +106,9 @@ class IndirectLight(ReadsScene):
         self.intersect = intersect
         #: Blocks at every surface but where a proxy holds no exact surface.
         self.shadow_test = shadow_test
+        #: Dimension pairs one vertex draws: the BSDF's direction, its lobe
+        #: and the roulette, and a point of each sampled light.
+        self.pairs_per_vertex = 2 + len(needs.sampled_lights)
 
     @dr.syntax
     def estimate(self, si: mi.SurfaceInteraction3f, key: mi.UInt32, throughput: mi.Color3f,
@@ -135,11 +138,11 @@ class IndirectLight(ReadsScene):
             here = dr.select(start, si, here)
             beta[start] = 1
             eta[start] = 1
-            pair = vertex * PAIRS_PER_VERTEX
+            pair = vertex * self.pairs_per_vertex
             u_direction = sequence.point(sample, pair)
             u_more = sequence.point(sample, pair + 1)
-            u_light = sequence.point(sample, pair + 2)
-            step = self._step(here, start, u_light, u_more.x, u_direction, active)
+            lights = self._light_samples(here, sequence, sample, pair + 2, active & ~start)
+            step = self._step(here, start, lights, u_more.x, u_direction, active)
             total += beta * step.light
             rays.shadow += step.shadow_rays
             delta = mi.has_flag(step.bs.sampled_type, mi.BSDFFlags.Delta)
@@ -163,30 +166,43 @@ class IndirectLight(ReadsScene):
             active &= go | (sample < count)
         return total / mi.Float(count), rays
 
-    def _step(self, here, start, u_light, u_lobe, u_direction, active):
-        """At ``here``: the light of one emitter sample (none at the tree's
-        hit, whose shadow rays lit it) and a sample of the BSDF for the
-        next direction (of its smooth part alone at the tree's hit)."""
+    def _light_samples(self, here, sequence, sample, first_pair, active) -> list:
+        """``(ds, radiance over density)`` towards each light from ``here``:
+        each delta light, then a point of each sampled light from the pairs
+        from ``first_pair`` on."""
+        samples = [light.sample_direction(here, mi.Point2f(0.5), active)
+                   for light in self.needs.delta_lights]
+        samples += [light.sample_direction(here, sequence.point(sample, first_pair + index),
+                                           active)
+                    for index, light in enumerate(self.needs.sampled_lights)]
+        return samples
+
+    def _step(self, here, start, lights, u_lobe, u_direction, active):
+        """At ``here``: the light of the samples ``lights`` (none at the
+        tree's hit, whose shadow rays lit it) and a sample of the BSDF for
+        the next direction (of its smooth part alone at the tree's hit)."""
         lit = active & ~start
-        ds, emitted = self.scene.sample_emitter_direction(here, u_light, False, lit)
-        answer = dr.dispatch(here.bsdf(), _vertex_bsdf, here, here.to_local(ds.d), u_lobe,
-                             u_direction, start, active)
-        value, pdf, bs, weight = answer
-        contribution = value * mi.Color3f(emitted)
-        lit &= (ds.pdf > 0) & dr.any(contribution > 0)
-        passed, marched = self.shadow_test.transmittance(here, ds.p, lit, 0)
-        mis = dr.select(ds.delta, 1, power_heuristic(ds.pdf, pdf))
-        light = dr.select(lit, contribution * passed * mis, 0)
-        return VertexStep(light, bs, mi.Color3f(weight), mi.UInt32(lit) + marched)
+        values, pdfs, bs, weight = dr.dispatch(
+            here.bsdf(), _vertex_bsdf, here, [here.to_local(ds.d) for ds, _ in lights],
+            u_lobe, u_direction, start, active)
+        light, shadow_rays = mi.Color3f(0), mi.UInt32(0)
+        for slot, ((ds, emitted), value, pdf) in enumerate(zip(lights, values, pdfs)):
+            contribution = value * mi.Color3f(emitted)
+            reaches = lit & (ds.pdf > 0) & dr.any(contribution > 0)
+            passed, marched = self.shadow_test.transmittance(here, ds.p, reaches, slot)
+            mis = dr.select(ds.delta, 1, power_heuristic(ds.pdf, pdf))
+            light += dr.select(reaches, contribution * passed * mis, 0)
+            shadow_rays += mi.UInt32(reaches) + marched
+        return VertexStep(light, bs, weight, shadow_rays)
 
     def _emission(self, hit, origin, bsdf_pdf, delta, active) -> mi.Color3f:
         """Emission reached at ``hit`` from ``origin`` by a BSDF sample of
         density ``bsdf_pdf`` (``delta``: of a delta lobe), weighed against
-        the light samples that could have found it."""
+        the sample of that light which could have found it."""
         emitter = hit.emitter(self.scene, active)
         radiance = emitter.eval(hit, active)
         ds = mi.DirectionSample3f(self.scene, hit, origin)
-        light_pdf = self.scene.pdf_emitter_direction(origin, ds, active & ~delta)
+        light_pdf = emitter.pdf_direction(origin, ds, active & ~delta)
         weight = dr.select(delta, 1, power_heuristic(bsdf_pdf, light_pdf))
         return dr.select(active, mi.Color3f(radiance) * weight, 0)
 
@@ -207,23 +223,24 @@ class VertexStep:
     shadow_rays: mi.UInt32
 
 
-def _vertex_bsdf(bsdf: mi.BSDF, si, wo_light, u_lobe, u_direction, start, active):
-    """One BSDF's answers at a path vertex: its value and density towards the
-    light sample, and its next direction, of the smooth part alone where the
-    path starts (``start``). Specialised to the instance: a BSDF with no
-    delta or null part samples once."""
+def _vertex_bsdf(bsdf: mi.BSDF, si, directions, u_lobe, u_direction, start, active):
+    """One BSDF's answers at a path vertex: its values and densities towards
+    the light samples' ``directions`` (local), and its next direction, of
+    the smooth part alone where the path starts (``start``). Specialised to
+    the instance: a BSDF without a smooth part evaluates nothing, one with
+    no delta or null part samples once."""
     flags = bsdf.flags()
     ctx = mi.BSDFContext()
-    if mi.has_flag(flags, mi.BSDFFlags.Smooth):
-        value, pdf, bs, weight = bsdf.eval_pdf_sample(ctx, si, wo_light, u_lobe, u_direction,
-                                                      active)
-    else:
-        bs, weight = bsdf.sample(ctx, si, u_lobe, u_direction, active)
-        value, pdf = mi.Color3f(0), mi.Float(0)
-    if mi.has_flag(flags, mi.BSDFFlags.Smooth) and mi.has_flag(
-            flags, mi.BSDFFlags.Delta | mi.BSDFFlags.Null):
-        smooth = mi.BSDFContext(mi.TransportMode.Radiance, mi.BSDFFlags.Smooth)
-        first, first_weight = bsdf.sample(smooth, si, u_lobe, u_direction, active & start)
+    smooth = mi.has_flag(flags, mi.BSDFFlags.Smooth)
+    values, pdfs = [], []
+    for wo in directions:
+        value, pdf = bsdf.eval_pdf(ctx, si, wo, active) if smooth else (0, 0)
+        values.append(mi.Color3f(value))
+        pdfs.append(mi.Float(pdf))
+    bs, weight = bsdf.sample(ctx, si, u_lobe, u_direction, active)
+    if smooth and mi.has_flag(flags, mi.BSDFFlags.Delta | mi.BSDFFlags.Null):
+        smooth_part = mi.BSDFContext(mi.TransportMode.Radiance, mi.BSDFFlags.Smooth)
+        first, first_weight = bsdf.sample(smooth_part, si, u_lobe, u_direction, active & start)
         bs = dr.select(start, first, bs)
         weight = dr.select(start, first_weight, weight)
-    return mi.Color3f(value), pdf, bs, mi.Color3f(weight)
+    return tuple(values), tuple(pdfs), bs, mi.Color3f(weight)
