@@ -29,7 +29,7 @@ that light with N paths:
   much less, so it gathers with that share of the paths. Counts are
   rounded up or down at random, keeping their mean, and are at least one,
   so that every hit's indirect light is estimated without bias.
-- Russian roulette ends paths that carry little from their third vertex
+- Russian roulette ends paths that carry little from their fourth vertex
   on, by the product of the tree's throughput and the path's, so a hit
   seen in a dim reflection spends little on long paths too.
 - The samples come from Owen-scrambled Sobol points (:mod:`.sequence`),
@@ -56,7 +56,7 @@ from .scene_ref import ReadsScene
 from .sequence import PaddedSobol, mix, to_unit
 
 #: Paths start Russian roulette at this vertex (0 is the tree's hit).
-ROULETTE_FROM = 2
+ROULETTE_FROM = 3
 #: Most a path survives a roulette with, so that every path ends.
 ROULETTE_CAP = 0.95
 #: A direction this close to the incoming one is "straight through".
