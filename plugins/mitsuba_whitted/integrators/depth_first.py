@@ -152,7 +152,7 @@ class DepthFirstTracer(Tracer):
                                        *rays.fields(), rays.paths)
 
     def trace_camera(self, sensor: mi.Sensor, positions: mi.Point2f, keys: mi.UInt32,
-                     lens: mi.Point2f = None, paths: mi.UInt32 = None):
+                     lens: mi.Point2f = None, paths: mi.Float = None):
         """``trace`` of camera rays through ``positions`` from ``lens`` (see
         ``camera_rays``), made inside the kernel (no ray arrays go through
         memory) where Dr.Jit can freeze the sensor's ray generation."""

@@ -115,10 +115,11 @@ class HitShader(ReadsScene):
                     and light & (generation + 3 <= depth)))
 
     def shade(self, si, ray, throughput, key, work: HitWork, generation=0,
-              count=None) -> "Shaded":
+              paths=None) -> "Shaded":
         """What the hits of ``ray`` add (:class:`Shaded`). ``generation``:
-        the hits' (an int, or per lane); ``count``: indirect paths per hit
-        (per lane; ``None``: the integrator's ``indirect_samples``)."""
+        the hits' (an int, or per lane); ``paths``: indirect paths per hit
+        (per lane, a real number; ``None``: the integrator's
+        ``indirect_samples``)."""
         shaded = Shaded()
         local = None
         if work.emit is not False:
@@ -132,7 +133,7 @@ class HitShader(ReadsScene):
             if work.gather is not False:
                 gathered, shaded.indirect_rays = self.indirect.estimate(
                     si, key, throughput, light & work.gather,
-                    self.settings.max_depth - generation - 1, count)
+                    self.settings.max_depth - generation - 1, paths)
                 shaded.gathered = gathered * throughput
         if local is not None:
             shaded.local = local * throughput

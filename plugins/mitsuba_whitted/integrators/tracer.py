@@ -63,8 +63,8 @@ class RayStats:
 
 class RayBatch:
     """Rays of one generation: origin, direction, throughput, hash key, and
-    the indirect paths each of its hits gathers (``None``: the integrator's
-    ``indirect_samples``)."""
+    the indirect paths each of its hits gathers (a real number per ray, see
+    :mod:`.indirect`; ``None``: the integrator's ``indirect_samples``)."""
 
     def __init__(self, o, d, throughput, key, paths=None):
         self.o, self.d, self.throughput, self.key = o, d, throughput, key
@@ -78,7 +78,7 @@ class RayBatch:
                         dr.gather(mi.Vector3f, self.d, index),
                         dr.gather(mi.Color3f, self.throughput, index),
                         dr.gather(mi.UInt32, self.key, index),
-                        None if self.paths is None else dr.gather(mi.UInt32, self.paths, index))
+                        None if self.paths is None else dr.gather(mi.Float, self.paths, index))
 
     def fields(self):
         return self.o, self.d, self.throughput, self.key
@@ -142,7 +142,7 @@ class Tracer:
         return self.camera_batch
 
     def trace_camera(self, sensor: mi.Sensor, positions: mi.Point2f, keys: mi.UInt32,
-                     lens: mi.Point2f = None, paths: mi.UInt32 = None):
+                     lens: mi.Point2f = None, paths: mi.Float = None):
         """``trace`` of the camera rays through ``positions`` (pixel units
         in the crop window) from ``lens`` (see ``camera_rays``), gathering
         ``paths`` indirect paths per hit."""

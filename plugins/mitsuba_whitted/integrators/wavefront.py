@@ -210,7 +210,7 @@ class WavefrontTracer(Tracer):
             return None, None
         batch = RayBatch(dr.empty(mi.Point3f, total), dr.empty(mi.Vector3f, total),
                          dr.empty(mi.Color3f, total), dr.empty(mi.UInt32, total),
-                         dr.empty(mi.UInt32, total) if with_paths else None)
+                         dr.empty(mi.Float, total) if with_paths else None)
         buffers = batch.fields() + ((batch.paths,) if with_paths else ())
         slots = dr.empty(mi.UInt32, total)
         offset = 0

@@ -13,7 +13,6 @@ from ..parameters import LastValid, checked_numbers, describe
 from . import antialias, gradients, render_plan
 from .render_plan import Demand, RenderPlan, plan_render
 from .scene_checks import check_emitters, check_placements
-from .indirect import share_paths
 from .lighting import LightingSettings
 from .scene_needs import SceneNeeds, analyse
 from .scene_ref import identity
@@ -711,16 +710,17 @@ class CameraShader:
         with dr.suspend_grad():
             paths = None
             if self.indirect_samples:
-                paths = share_paths(mi.Float(self.indirect_samples / share), keys)
+                paths = dr.full(mi.Float, self.indirect_samples / share, dr.width(keys))
             radiance, alpha, *gathered = self.trace(positions, keys, lens, paths)
             if not gathered:
                 return radiance, alpha
             return radiance, alpha, radiance - gathered[0]
 
     def trace(self, positions: mi.Point2f, keys: mi.UInt32, lens: mi.Point2f = None,
-              paths: mi.UInt32 = None) -> tuple:
+              paths: mi.Float = None) -> tuple:
         """The tracer's radiance, alpha (and gathered radiance) of the
-        camera samples, ``paths`` indirect paths per smooth hit of each."""
+        camera samples, ``paths`` indirect paths (per sample, a real number)
+        per smooth hit of each."""
         total = dr.width(positions)
 
         def trace(start, stop, part):
@@ -732,7 +732,7 @@ class CameraShader:
                 self.sensor, dr.gather(mi.Point2f, positions, part),
                 dr.gather(mi.UInt32, keys, part),
                 None if lens is None else dr.gather(mi.Point2f, lens, part),
-                None if paths is None else dr.gather(mi.UInt32, paths, part))
+                None if paths is None else dr.gather(mi.Float, paths, part))
 
         outputs = in_launches(total, self.batch, trace, lambda stop: self._report(stop, total))
         dr.eval(outputs)
