@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .intervals import Estimate, bounded, spread, verdict
+from .intervals import Estimate, bounded, quotient, spread, verdict
 from .sweep import Sweep, SweepPoint
 
 
@@ -89,7 +89,12 @@ def envelope(reaches: list[Reach]) -> Reach:
 class Gain:
     """The equal-error speed-up of one Whitted setting in one metric:
     path's time (and spp) to reach the setting's error, on the faster of
-    its samplers' curves there (``sampler``), over the setting's time."""
+    its samplers' curves there (``sampler``), over the setting's time.
+    Path's time and its interval come from the bootstrap, which draws the
+    setting's tiles with those of path's images and so carries the
+    uncertainty of both errors and of the interpolation; the speed-up's
+    interval is as wide as the intervals of path's time and of the
+    setting's time allow together (:func:`.intervals.quotient`)."""
 
     speedup: Estimate
     path_seconds: Estimate
@@ -159,10 +164,9 @@ def _gain(sweep: Sweep, errors: np.ndarray, times: np.ndarray, index: int) -> Ga
     curves = sweep.path_curves()
     found = envelope([reach(errors[:, columns], times[:, columns], spp, errors[:, index], number)
                       for number, (_, columns, spp) in enumerate(curves)])
-    own = times[:, index]
-
-    def estimate(low, high):
-        return bounded(low[0], high[0], low[1:], high[1:])
-
-    return Gain(estimate(found.low / own, found.high / own), estimate(found.low, found.high),
-                estimate(found.spp_low, found.spp_high), curves[found.curve[0]][0])
+    path = bounded(found.low[0], found.high[0], found.low[1:], found.high[1:])
+    own = spread(times[0, index], times[1:, index])
+    return Gain(quotient(path, own), path,
+                bounded(found.spp_low[0], found.spp_high[0], found.spp_low[1:],
+                        found.spp_high[1:]),
+                curves[found.curve[0]][0])

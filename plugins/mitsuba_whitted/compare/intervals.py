@@ -159,6 +159,22 @@ def median_estimate(times) -> Estimate:
     return spread(float(np.median(column)), Draws.make(len(column)).medians(column)[:, 0])
 
 
+def quotient(numerator: Estimate, denominator: Estimate) -> Estimate:
+    """``numerator`` over ``denominator``, from the low end of one over the
+    high end of the other to the reverse.
+
+    Not the percentiles of the replicates' quotients: those cancel what
+    the two times share within the rounds of one process, but the same
+    render loaded twice, or run in another process, takes a few percent
+    more or less for reasons the rounds of one process do not show (where
+    its memory lies, what ran before it, which cores are free), and two
+    different renders answer a busy machine differently. Each time's own
+    interval moves with the machine; the quotient keeps both."""
+    return Estimate(numerator.median / denominator.median,
+                    numerator.low / denominator.high, numerator.high / denominator.low,
+                    numerator.relation)
+
+
 def spread(point: float, replicates: np.ndarray) -> Estimate:
     """``point`` with the interval of its replicates."""
     return bounded(point, point, replicates, replicates)
