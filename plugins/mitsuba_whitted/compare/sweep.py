@@ -244,7 +244,8 @@ def run_sweep(scene: mi.Scene, reference: Reference, settings: list[Setting], se
               rounds: int, progress=None) -> Sweep:
     """Render, time and measure ``settings``: path's with the sensor of
     ``sensors`` that has their sampler, in ``rounds`` interleaved rounds."""
-    renders = [_render_function(scene, setting, sensors) for setting in settings]
+    integrators = {}
+    renders = [_render_function(scene, setting, sensors, integrators) for setting in settings]
     steps = len(settings) + rounds
     first = []
     for setting, render in zip(settings, renders):
@@ -263,8 +264,13 @@ def run_sweep(scene: mi.Scene, reference: Reference, settings: list[Setting], se
     return Sweep(points, reference.image.shape[:2], Draws.make(rounds))
 
 
-def _render_function(scene: mi.Scene, setting: Setting, sensors: dict):
-    integrator = mi.load_dict(setting.integrator)
+def _render_function(scene: mi.Scene, setting: Setting, sensors: dict, integrators: dict):
+    """``setting``'s render; settings with the same integrator share one
+    (``integrators``, by its settings as text), as path's rungs do."""
+    key = json.dumps(setting.integrator, sort_keys=True, default=str)
+    if key not in integrators:
+        integrators[key] = mi.load_dict(setting.integrator)
+    integrator = integrators[key]
     sensor = sensors[setting.sampler] if setting.sampler else 0
 
     def render():
