@@ -13,7 +13,8 @@ from .bound import CASTS, launch_split, ray_casting_bound
 from . import gradients
 from .equal_error import equal_error_speedup
 from .processes import child_peak_memory, fresh_process_render, peak_rss_mib
-from .timing import release_scenes, scaling_table, time_render
+from ..jit import release_scenes
+from .timing import scaling_table, time_render
 
 DEFAULT_SCENE = Path(__file__).resolve().parents[3] / "scenes" / "cosc363.xml"
 

@@ -3,15 +3,13 @@ ones, and the warm time as one setting at a time varies."""
 
 from __future__ import annotations
 
-import gc
 from dataclasses import dataclass
 from pathlib import Path
 
-import drjit as dr
 import mitsuba as mi
 
 from ..compare.intervals import Estimate, median_estimate
-from ..jit import timed
+from ..jit import release_scenes, timed
 from ..overrides import load_with
 
 
@@ -47,17 +45,6 @@ class ScalingRow:
     @property
     def rays_per_second(self) -> float:
         return self.rays / self.seconds.median
-
-
-def release_scenes() -> None:
-    """Free the scenes measured so far, and the memory cached for them.
-
-    Every call of a frozen kernel traverses all live instances of the
-    scene's plugin types, not only the scene's own, so scenes kept alive
-    would slow every later measurement; so would the memory cached from a
-    large render."""
-    gc.collect()
-    dr.flush_malloc_cache()
 
 
 def warm_timing(scene_path: Path, defines: dict, settings: dict, repeats: int) -> RenderTiming:

@@ -29,7 +29,7 @@ from itertools import zip_longest
 import mitsuba as mi
 import numpy as np
 
-from ..jit import timed
+from ..jit import release_scenes, timed
 from ..overrides import load_with
 from .intervals import SEED, Draws, tile_pixels, tile_sums
 from .metrics import TILE_SIDES, error_maps, rmse
@@ -244,6 +244,7 @@ def run_sweep(scene: mi.Scene, reference: Reference, settings: list[Setting], se
               rounds: int, progress=None) -> Sweep:
     """Render, time and measure ``settings``: path's with the sensor of
     ``sensors`` that has their sampler, in ``rounds`` interleaved rounds."""
+    release_scenes()
     integrators = {}
     renders = [_render_function(scene, setting, sensors, integrators) for setting in settings]
     steps = len(settings) + rounds
