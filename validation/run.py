@@ -24,7 +24,8 @@ from mitsuba_whitted.compare import (PATH_SAMPLERS, CompareOptions, ReferenceCac
                                      run_sweep, scene_whitted_settings, whitted_batches)
 from mitsuba_whitted.compare.equal_error import time_estimates
 from mitsuba_whitted.compare.report import MarkdownReport, number
-from mitsuba_whitted.compare.scene_report import (timing_sentence, verdict_sentences,
+from mitsuba_whitted.compare.scene_report import (speedup_sentence, split_sentence,
+                                                  timing_sentence, verdict_sentences,
                                                   whitted_table)
 from mitsuba_whitted.files import replaced_folder
 from mitsuba_whitted.system import machine
@@ -207,14 +208,9 @@ def speed_section(report: MarkdownReport, cache: ReferenceCache, backend,
         f"Each scene at {size} x {size}: Whitted's settings (anti-aliasing modes, thresholds, "
         f"depths) and `path` at 1, 2, 4, ... {options.path_max_spp} spp with each of its "
         f"samplers ({', '.join(PATH_SAMPLERS)}), against a {options.reference_spp}-spp "
-        f"`path` reference. {timing_sentence(options.rounds)} The *equal-error speed-up* of "
-        "a Whitted setting, in relMSE and in FLIP apart, is the time `path` needs for the "
-        "same error, on the faster of its samplers' curves there (interpolated on the "
-        "log-log curve), over Whitted's time: *faster* or *slower* where its interval "
-        "excludes 1, *tie* where it holds 1; `<`/`>` mark bounds outside path's measured "
-        "range. Each setting's error is split into its *sampling error*, against Whitted's "
-        "own converged render, and its *model bias*, that render against the reference. The "
-        "full report of each scene (images, crops, error maps, path's rungs) is linked.")
+        f"`path` reference. {timing_sentence(options.rounds)} "
+        f"{split_sentence(options.converged_side)} {speedup_sentence()} The full report of "
+        "each scene (images, crops, error maps, path's rungs) is linked.")
     comparisons = []
     for index, scene_path in enumerate(settings.scenes, start=1):
         out = report.directory / "speed" / scene_path.stem

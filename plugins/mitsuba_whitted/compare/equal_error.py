@@ -134,6 +134,7 @@ def analyse(sweep: Sweep) -> Analysis:
     rounds and tiles (the first row of each array is the estimate from all
     of them)."""
     times = _replicated_times(sweep)
+    seconds = time_estimates(sweep, times)
     gains = {p.label: {} for p in sweep.of_kind("whitted")}
     for metric in sweep.metrics:
         sums = np.array([p.tiles[metric] for p in sweep.points])
@@ -141,8 +142,9 @@ def analyse(sweep: Sweep) -> Analysis:
         errors = _with_estimate(sums.sum(axis=1) / pixels.sum(), sweep.draws.means(sums, pixels))
         for index, point in enumerate(sweep.points):
             if point.kind == "whitted":
-                gains[point.label][metric] = _gain(sweep, errors, times, index)
-    return Analysis(time_estimates(sweep, times), gains)
+                gains[point.label][metric] = _gain(sweep, errors, times, index,
+                                                   seconds[point.label])
+    return Analysis(seconds, gains)
 
 
 def time_estimates(sweep: Sweep, times: np.ndarray | None = None) -> dict:
@@ -160,12 +162,14 @@ def _with_estimate(estimate: np.ndarray, replicates: np.ndarray) -> np.ndarray:
     return np.concatenate([estimate[None], replicates])
 
 
-def _gain(sweep: Sweep, errors: np.ndarray, times: np.ndarray, index: int) -> Gain:
+def _gain(sweep: Sweep, errors: np.ndarray, times: np.ndarray, index: int,
+          own: Estimate) -> Gain:
+    """Point ``index``'s gain: ``errors`` and ``times`` are replicates x
+    points, ``own`` the point's time."""
     curves = sweep.path_curves()
     found = envelope([reach(errors[:, columns], times[:, columns], spp, errors[:, index], number)
                       for number, (_, columns, spp) in enumerate(curves)])
     path = bounded(found.low[0], found.high[0], found.low[1:], found.high[1:])
-    own = spread(times[0, index], times[1:, index])
     return Gain(quotient(path, own), path,
                 bounded(found.spp_low[0], found.spp_high[0], found.spp_low[1:],
                         found.spp_high[1:]),

@@ -17,6 +17,11 @@ reaches, or already beats, the error it is asked for. Each replicate then
 gives a range of values rather than one value (``low`` and ``high``
 arrays); the interval runs from the low percentile of the lower ends to
 the high percentile of the upper ends, and may be open (0 or infinity).
+
+A speed-up, one time over another, spans what the two times' intervals
+allow together (:func:`quotient`) rather than the percentiles of the
+replicates' quotients, which would credit the pairing of the rounds with
+more than it holds from one process to the next.
 """
 
 from __future__ import annotations

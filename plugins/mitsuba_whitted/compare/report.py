@@ -1,8 +1,8 @@
 """A Markdown report with PNG images and matplotlib plots.
 
-Images are tone mapped with the sRGB curve (``imageio.to_8bit``); error
-and energy maps use a colour map with a colour bar, so their values can be
-read off. Every link is relative to the report's directory, so the report
+Images are tone mapped with the sRGB curve (``imageio.to_8bit``) and
+written pixel for pixel, crops enlarged by whole factors; error and energy
+maps use a colour map with a colour bar, so their values can be read off. Every link is relative to the report's directory, so the report
 can be moved or committed as a whole.
 """
 
@@ -139,7 +139,7 @@ class MarkdownReport:
         plt = _pyplot()
         path, link = self._target(name)
         figure, axes_row = plt.subplots(1, len(panels), figsize=(6.2 * len(panels) + 2.6, 4.6),
-                                        dpi=80, squeeze=False)
+                                        dpi=100, squeeze=False)
         for axes, panel in zip(axes_row[0], panels):
             _draw_panel(axes, panel, plt.get_cmap("tab10"))
         handles, labels = axes_row[0][0].get_legend_handles_labels()
@@ -182,6 +182,10 @@ class Panel:
     floor: float | None = None
 
 
+#: Where each model's bias line is labelled, in turn (models often err
+#: alike, and their labels would cover one another at one place): the
+#: share of the axes' width, the alignment, and the shift in points.
+_BIAS_LABELS = ((1.0, "right", -2), (0.0, "left", 2), (0.5, "center", 0))
 #: Colour and line of each of path's curves, in turn.
 _CURVE_STYLES = (("tab:blue", "o-"), ("tab:cyan", "s--"), ("tab:purple", "^:"))
 
@@ -203,9 +207,10 @@ def _draw_panel(axes, panel: Panel, colours) -> None:
         axes.plot(marker.seconds, marker.sampling, shape, color=colour, markersize=7,
                   markerfacecolor="none")
     for index, (label, error) in enumerate(panel.biases):
+        place, align, shift = _BIAS_LABELS[index % len(_BIAS_LABELS)]
         axes.axhline(error, color="grey", linestyle=(0, (1, 1 + index)), linewidth=1)
-        axes.annotate(f"model bias: {label}", (1.0, error), xycoords=("axes fraction", "data"),
-                      xytext=(-2, 2), textcoords="offset points", ha="right", fontsize=6,
+        axes.annotate(f"model bias: {label}", (place, error), xycoords=("axes fraction", "data"),
+                      xytext=(shift, 2), textcoords="offset points", ha=align, fontsize=6,
                       color="dimgrey")
     if panel.floor:
         axes.axhline(panel.floor, color="grey", linestyle="--", linewidth=1,

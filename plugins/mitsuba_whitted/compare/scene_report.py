@@ -231,33 +231,44 @@ def _write_report(out_dir, scene_path, defines, reference, sweep, converged, res
 
 
 def timing_sentence(rounds: int) -> str:
-    """How the times and intervals of a sweep of ``rounds`` rounds were
-    measured."""
+    """How the times and their intervals of a sweep of ``rounds`` rounds
+    were measured."""
     return (f"Times: every setting rendered once to compile (*first render*) and once more "
-            f"untimed, then timed once in each of {rounds} rounds, Whitted's and path's "
-            "settings taking turns in an order shuffled anew in every round; a time is the "
-            f"median of the rounds with its {1 - 2 * TAIL:.0%} interval, from {REPLICATES} "
-            "bootstrap replicates that draw the rounds (the same for every setting) and "
-            "square tiles of the images (the same for every image) with replacement, "
-            + " and ".join(f"{side} pixels a side for {METRIC_NAMES[metric]}"
-                           for metric, side in TILE_SIDES.items()) + ".")
+            f"untimed, then timed once in each of {rounds} rounds, in an order shuffled anew "
+            "in every round (Whitted's and path's settings, where both are timed, taking "
+            "turns); a time is the median of the rounds with its "
+            f"{1 - 2 * TAIL:.0%} interval, from {REPLICATES} bootstrap replicates that draw "
+            "the rounds with replacement (the same draws for every setting).")
+
+
+def split_sentence(side: int) -> str:
+    """What the two parts of a Whitted setting's error are."""
+    return ("*Sampling error*: the setting's image against Whitted's own converged render "
+            f"(the same settings with a {side} x {side} grid in every pixel); *model bias*: "
+            "that converged render against path's reference, what no anti-aliasing can "
+            "remove. The total is near their sum where the two are unrelated.")
+
+
+def speedup_sentence() -> str:
+    """What an equal-error speed-up, its interval and its verdict are."""
+    tiles = " and ".join(f"{side} for {METRIC_NAMES[metric]}"
+                         for metric, side in TILE_SIDES.items())
+    return ("*Equal-error speed-up*, in each metric apart: the time `path` needs for the "
+            "setting's error, on the faster of its two samplers' curves there (interpolated "
+            "on the log-log curve), over the setting's time. Path's time there comes from the "
+            "same bootstrap, whose replicates also draw square tiles of the error maps with "
+            f"replacement (the same tiles for every image; pixels a side: {tiles}) and "
+            "interpolate again; the speed-up's interval runs from path's lowest time over "
+            "the setting's highest to the reverse. *faster* or *slower* only where the "
+            "interval excludes 1, else *tie*. `<` and `>` mark bounds, where the error lies "
+            "outside path's measured range (`<`: its 1-spp render is already as accurate; "
+            "`>`: its most samples do not reach it), their intervals open at one end.")
 
 
 def _error_tables(report, results):
     report.heading("Error and time")
     whitted_table(report, results)
-    report.paragraph(
-        "*Sampling error*: the setting's image against Whitted's own converged render "
-        f"(the same settings, a {results['converged']['side']} x "
-        f"{results['converged']['side']} grid in every pixel); *model bias*: that converged "
-        "render against path's reference, what no anti-aliasing can remove. The total is "
-        "near their sum where the two are unrelated. *Equal-error speed-up*: the time `path` "
-        "needs for the setting's error, on the faster of its two samplers' curves there "
-        "(interpolated on the log-log curve), over the setting's time; its interval comes "
-        "from the same bootstrap, the interpolation done again in every replicate. "
-        "*faster* or *slower* only where the interval excludes 1, else *tie*. `<` and `>` "
-        "mark bounds, where the error lies outside path's measured range (`<`: its 1-spp "
-        "render is already as accurate; `>`: its most samples do not reach it).")
+    report.paragraph(f"{split_sentence(results['converged']['side'])} {speedup_sentence()}")
     report.table(["path", "spp", "first render (s)", "warm render (s)", "relMSE", "RMSE",
                   "FLIP"],
                  [[sampler, rung["spp"], number(rung["first_seconds"]),
@@ -307,6 +318,10 @@ def _gain_cell(entry: dict, metric: str) -> str:
             f"{number(spp.median, 2)} spp, {path['sampler']}")
 
 
+#: A verdict in a sentence.
+VERDICT_WORDS = {"faster": "faster", "slower": "slower", "tie": "a tie"}
+
+
 def disagreements(results: dict) -> list[str]:
     """A sentence for each Whitted setting whose verdicts differ between
     the metrics."""
@@ -314,7 +329,7 @@ def disagreements(results: dict) -> list[str]:
     for label, entry in results["whitted"].items():
         verdicts = entry["verdict"]
         if len(set(verdicts.values())) > 1:
-            said = [f"at equal {METRIC_NAMES[m]} it is {v} "
+            said = [f"at equal {METRIC_NAMES[m]} it is {VERDICT_WORDS[v]} "
                     f"({estimate_text(Estimate.from_json(entry['speedup'][m]), 'x')})"
                     for m, v in verdicts.items()]
             sentences.append(f"The metrics disagree on *{label}*: {' while '.join(said)}.")
@@ -324,8 +339,8 @@ def disagreements(results: dict) -> list[str]:
 def crossing_sentence(cross: dict, metric: str) -> str:
     """Where path overtakes the most accurate Whitted setting in ``metric``."""
     seconds, spp = Estimate.from_json(cross["path_seconds"]), Estimate.from_json(cross["path_spp"])
-    where = {"=": f"at {estimate_text(seconds, ' s')} (about {estimate_text(spp, ' spp')}, "
-                  f"{cross['sampler']})",
+    where = {"=": f"at {estimate_text(seconds, ' s')}, about {estimate_text(spp, ' spp')} "
+                  f"with {cross['sampler']}",
              "<": f"already at 1 spp ({estimate_text(seconds, ' s')})",
              ">": f"beyond the measured range (after {estimate_text(seconds, ' s')})"}
     return (f"In {METRIC_NAMES[metric]}, path's curves cross {where[seconds.relation]}: from "
