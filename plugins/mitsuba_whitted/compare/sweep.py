@@ -8,9 +8,9 @@ setting is timed once, Whitted's and path's settings taking turns, so
 that the machine's drift from one minute to the next falls on all of
 them alike, in an order shuffled anew in every round.
 ``dr.sync_thread()`` runs before each clock stops, so a time covers the
-work and not just its launch. Each setting renders the same
-image every time (Whitted is deterministic, path keeps its seed), so one
-image per setting is measured.
+work and not just its launch. Each setting renders the same image every
+time (Whitted is deterministic, path keeps its seed), so one image per
+setting is measured.
 
 Path's curve is rendered with two samplers, ``independent`` and
 ``multijitter`` (stratified, so its error falls faster on smooth
@@ -181,11 +181,6 @@ class SweepPoint:
     def spp(self) -> int:
         return self.setting.spp
 
-    @property
-    def seconds(self) -> float:
-        """Median of the rounds' times."""
-        return float(np.median(self.times))
-
     def error(self, metric: str) -> float:
         return {"relmse": self.rel_mse, "flip": self.flip}[metric]
 
@@ -244,6 +239,8 @@ def run_sweep(scene: mi.Scene, reference: Reference, settings: list[Setting], se
               rounds: int, progress=None) -> Sweep:
     """Render, time and measure ``settings``: path's with the sensor of
     ``sensors`` that has their sampler, in ``rounds`` interleaved rounds."""
+    # A scene an earlier comparison left to the collector would make every
+    # render timed here dearer.
     release_scenes()
     integrators = {}
     renders = [_render_function(scene, setting, sensors, integrators) for setting in settings]
