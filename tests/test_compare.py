@@ -16,11 +16,12 @@ import pytest
 from mitsuba_whitted.compare import (ReferenceCache, cache_key, cached_reference, flip_error,
                                      luminance, missing_energy_share, noise_rel_mse, rel_mse,
                                      rmse, scene_digest)
+from mitsuba_whitted.compare.converged import converged_renders
 from mitsuba_whitted.compare.report import number
 from mitsuba_whitted.imageio import read_image
 
 from conftest import assert_finite, cli, one_line
-from validation.scenes import REPORT_SCENE
+from validation.scenes import REPORT_SCENE, glass_scene
 
 RNG = np.random.default_rng(363)
 
@@ -120,6 +121,30 @@ def test_second_reference_comes_from_the_cache(tmp_path):
     # The spread of the passes is a real noise estimate: the sky seen past
     # the sphere is noiseless, the diffuse sphere under it is not.
     assert first.variance[0, 0].max() == 0 and first.variance[12, 12].min() > 0
+
+
+def test_converged_renders_are_shared_by_a_model_and_cached(tmp_path):
+    """Settings that differ only in their anti-aliasing converge to one
+    image, rendered once; a second comparison takes it from the cache, and
+    another model or another scene is another entry."""
+    scene = mi.load_dict(glass_scene(size=16))
+    cache = ReferenceCache(tmp_path)
+    whitted = {"none": {"aa": "none"}, "grid": {"aa": "grid", "aa_samples": 2},
+               "shallow": {"aa": "none", "max_depth": 2}}
+    first = converged_renders(scene, "scene a", whitted, cache, side=4)
+    assert first["none"] is first["grid"] and first["none"] is not first["shallow"]
+    assert (cache.misses, cache.hits) == (2, 0)
+    again = converged_renders(scene, "scene a", whitted, cache, side=4)
+    assert (cache.misses, cache.hits) == (2, 2) and again["none"].cached
+    np.testing.assert_array_equal(again["none"].image, first["none"].image)
+    converged_renders(scene, "scene b", {"none": whitted["none"]}, cache, side=4)
+    assert cache.misses == 3
+    # A finer grid changes it far less than the grid changed the image of
+    # the pixel centres.
+    finer = converged_renders(scene, "scene a", {"none": whitted["none"]}, cache, side=16)
+    centres = np.asarray(mi.render(scene, integrator=mi.load_dict({"type": "whitted"})))
+    assert (rel_mse(first["none"].image, finer["none"].image)
+            < rel_mse(centres[..., :3], finer["none"].image) / 5)
 
 
 # -------------------------------------------------------- compare --quick
