@@ -9,6 +9,7 @@ import statistics
 import numpy as np
 
 from conftest import cli
+from mitsuba_whitted.bench.equal_error import HEADLINE
 from validation.scenes import ROOT
 
 
@@ -45,9 +46,15 @@ def test_bench_quick_writes_every_figure(tmp_path):
         assert split[f"{part}_s"] > 0 and split[f"{part}_bound_s"] > 0
         assert split[f"{part}_ratio"] > 0
     assert {row["parameter"] for row in figures["scaling"]} == {"res", "max_depth", "aa_max_depth"}
-    assert all(row["seconds"] > 0 for row in figures["scaling"])
+    assert all(row["seconds"]["median"] > 0 for row in figures["scaling"])
     assert all(mib > 0 for mib in figures["peak_rss_mib"].values())
-    assert figures["equal_error"]["speedup"] > 0
+    warm = figures["warm_render_s"]
+    assert 0 < warm["low"] <= warm["median"] <= warm["high"]
+    equal_error = figures["equal_error"]
+    assert equal_error["whitted"] == HEADLINE and len(equal_error["settings"]) > 1
+    for metric in ("relmse", "flip"):
+        assert equal_error["speedup"][metric]["median"] > 0
+        assert equal_error["verdict"][metric] in ("faster", "slower", "tie")
     gradient = figures["gradient"]
     assert gradient["parameters"] > 0 and gradient["ratio"] > 0
     assert all(mib > 0 for mib in gradient["peak_rss_mib"].values())

@@ -13,14 +13,15 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from mitsuba_whitted.compare import (ReferenceCache, SweepPoint, cache_key, cached_reference,
-                                     equal_error, flip_error, luminance, missing_energy_share,
-                                     noise_rel_mse, rel_mse, rmse, scene_digest)
+from mitsuba_whitted.compare import (ReferenceCache, cache_key, cached_reference, flip_error,
+                                     luminance, missing_energy_share, noise_rel_mse, rel_mse,
+                                     rmse, scene_digest)
+from mitsuba_whitted.compare.converged import converged_renders
 from mitsuba_whitted.compare.report import number
 from mitsuba_whitted.imageio import read_image
 
 from conftest import assert_finite, cli, one_line
-from validation.scenes import REPORT_SCENE
+from validation.scenes import REPORT_SCENE, glass_scene
 
 RNG = np.random.default_rng(363)
 
@@ -54,29 +55,6 @@ def test_flip_is_zero_for_equal_images_and_grows_with_the_error():
     assert flip_error(reference, reference)[0] == 0.0
     small, large = (flip_error(reference * factor, reference)[0] for factor in (1.1, 2.0))
     assert 0 < small < large <= 1
-
-
-# ------------------------------------------------------ equal-error time
-
-def _path_curve():
-    """A path tracer whose relMSE is exactly 1/spp at 10 ms per spp."""
-    return [SweepPoint(f"{n}", "path", {}, n, 0.01 * n, 0.01 * n, None, rel_mse=1.0 / n)
-            for n in (1, 2, 4, 8, 16)]
-
-
-def test_equal_error_interpolates_a_power_law_exactly():
-    # On log-log axes a power law is a line, so interpolation is exact.
-    for spp in (3.0, 5.657, 8.0, 12.5):
-        found = equal_error(_path_curve(), 1.0 / spp)
-        assert found.relation == "="
-        assert found.spp == pytest.approx(spp, rel=1e-9)
-        assert found.seconds == pytest.approx(0.01 * spp, rel=1e-9)
-
-
-def test_equal_error_outside_the_range_is_a_bound():
-    assert equal_error(_path_curve(), 2.0).relation == "<"
-    beyond = equal_error(_path_curve(), 1e-3)
-    assert beyond.relation == ">" and beyond.spp == 16
 
 
 # ------------------------------------------------------------------ cache
@@ -145,6 +123,30 @@ def test_second_reference_comes_from_the_cache(tmp_path):
     assert first.variance[0, 0].max() == 0 and first.variance[12, 12].min() > 0
 
 
+def test_converged_renders_are_shared_by_a_model_and_cached(tmp_path):
+    """Settings that differ only in their anti-aliasing converge to one
+    image, rendered once; a second comparison takes it from the cache, and
+    another model or another scene is another entry."""
+    scene = mi.load_dict(glass_scene(size=16))
+    cache = ReferenceCache(tmp_path)
+    whitted = {"none": {"aa": "none"}, "grid": {"aa": "grid", "aa_samples": 2},
+               "shallow": {"aa": "none", "max_depth": 2}}
+    first = converged_renders(scene, "scene a", whitted, cache, side=4)
+    assert first["none"] is first["grid"] and first["none"] is not first["shallow"]
+    assert (cache.misses, cache.hits) == (2, 0)
+    again = converged_renders(scene, "scene a", whitted, cache, side=4)
+    assert (cache.misses, cache.hits) == (2, 2) and again["none"].cached
+    np.testing.assert_array_equal(again["none"].image, first["none"].image)
+    converged_renders(scene, "scene b", {"none": whitted["none"]}, cache, side=4)
+    assert cache.misses == 3
+    # A finer grid changes it far less than the grid changed the image of
+    # the pixel centres.
+    finer = converged_renders(scene, "scene a", {"none": whitted["none"]}, cache, side=16)
+    centres = np.asarray(mi.render(scene, integrator=mi.load_dict({"type": "whitted"})))
+    assert (rel_mse(first["none"].image, finer["none"].image)
+            < rel_mse(centres[..., :3], finer["none"].image) / 5)
+
+
 # -------------------------------------------------------- compare --quick
 
 def test_compare_quick_writes_a_consistent_report(tmp_path):
@@ -160,20 +162,34 @@ def test_compare_quick_writes_a_consistent_report(tmp_path):
 
     reference = read_image(images / "reference.exr")
     assert reference.shape == (64, 64, 3)
+    # Shown pixel for pixel, and enlarged where anti-aliasing matters.
+    assert read_image(images / "aa_none.png").shape == (64, 64, 3)
+    assert read_image(images / "crop_aa_none.png").shape == (192, 192, 3)
     assert_finite(reference)
-    whitted = [p for p in results["points"] if p["kind"] == "whitted"]
-    path = sorted((p for p in results["points"] if p["kind"] == "path"), key=lambda p: p["spp"])
-    assert {p["label"] for p in whitted} == {"aa none", "aa grid 2x2", "aa adaptive 0.25"}
-    assert [p["spp"] for p in path] == [1, 2, 4, 8, 16]
-    for point in whitted:
+    whitted = results["whitted"]
+    assert set(whitted) == {"aa none", "aa grid 2x2", "aa adaptive 0.25"}
+    assert set(results["path"]) == {"independent", "multijitter"}
+    for rungs in results["path"].values():
+        assert [rung["spp"] for rung in rungs] == [1, 2, 4, 8, 16]
+    path = results["path"]["independent"]
+    for label, point in whitted.items():
         image = read_image(images / f"{point['image']}.exr")
         assert_finite(image)
         # The images are stored as float32, the report computed in float64.
         assert rel_mse(image, reference) == pytest.approx(point["rel_mse"], rel=1e-5)
-        row = next(line for line in report.splitlines() if line.startswith(f"| {point['label']} |"))
-        assert f"| {number(point['rel_mse'])} |" in row
-        gain = results["speedups"][point["label"]]
-        assert gain["factor"] == pytest.approx(gain["path_seconds"] / point["seconds"])
+        row = next(line for line in report.splitlines() if line.startswith(f"| {label} |"))
+        assert f"| {number(point['rel_mse'])} / " in row
+        for metric in ("relmse", "flip"):
+            speedup = point["speedup"][metric]
+            assert speedup["low"] <= speedup["median"] <= (speedup["high"] or np.inf)
+            assert point["verdict"][metric] in ("faster", "slower", "tie")
+            assert point["verdict"][metric] in row
+            there = point["path_at_equal_error"][metric]["seconds"]["median"]
+            assert speedup["median"] == pytest.approx(there / point["seconds"]["median"])
+            # A setting's sampling error is against its own converged
+            # render, which shares the model's bias.
+            assert point["sampling_error"][metric] < point["model_bias"][metric]
+        assert point["seconds"]["low"] <= point["seconds"]["median"] <= point["seconds"]["high"]
     # Path error falls with the sample count (about as 1/spp).
     assert path[-1]["rel_mse"] < path[0]["rel_mse"] / 4
     share = results["missing_energy_share"]

@@ -94,3 +94,18 @@ def test_a_crop_window_keeps_its_place_on_the_film(literal_scene):
     film = load_with(literal_scene, {}, {"res": 40}).sensors()[0].film()
     assert (list(film.size()), list(film.crop_offset()), list(film.crop_size())) == \
         ([40, 30], [5, 3], [20, 15])
+
+
+def test_the_sampler_is_replaced_and_keeps_its_sample_count(tmp_path, literal_scene):
+    """A sampler the scene names by type and parameters gives way to
+    another type; its sample count (here a parameter) stays in use."""
+    text = LITERAL_SCENE.replace(
+        "<film ", '<sampler type="stratified"><integer name="sample_count" value="$spp"/>'
+        '<boolean name="jitter" value="false"/></sampler><film ')
+    (tmp_path / "sampled.xml").write_text('<scene version="3.0.0"><default name="spp" '
+                                          'value="4"/>' + text.split(">", 1)[1])
+    for path, count in ((literal_scene, 4), (tmp_path / "sampled.xml", 9)):
+        sampler = load_with(path, {"spp": "9"} if count == 9 else {},
+                            {"sampler": "multijitter"}).sensors()[0].sampler()
+        assert sampler.class_name() == "MultijitterSampler"
+        assert sampler.sample_count() == count

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import sys
 import time
+from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
 
@@ -16,15 +17,18 @@ import mitsuba as mi
 import numpy as np
 
 from mitsuba_whitted.cli import CommandParser, add_cluster_options, run_command
-from mitsuba_whitted.compare import (CompareOptions, ReferenceCache, cache_key, cached_reference,
-                                     compare_scene, equivalence_test, flip_error, luminance,
+from mitsuba_whitted.compare import (PATH_SAMPLERS, CompareOptions, ReferenceCache, Setting,
+                                     cache_key, cached_reference, compare_scene,
+                                     equivalence_test, estimate_text, luminance,
                                      missing_energy_share, missing_light, noise_rel_mse,
-                                     rel_mse, scene_whitted_settings, timed_render,
-                                     whitted_batches)
+                                     run_sweep, scene_whitted_settings, whitted_batches)
+from mitsuba_whitted.compare.equal_error import time_estimates
 from mitsuba_whitted.compare.report import MarkdownReport, number
+from mitsuba_whitted.compare.scene_report import (speedup_sentence, split_sentence,
+                                                  timing_sentence, verdict_sentences,
+                                                  whitted_table)
 from mitsuba_whitted.files import replaced_folder
 from mitsuba_whitted.system import machine
-from mitsuba_whitted.compare.sweep import speedup_text
 from mitsuba_whitted.distributed import SceneSource, backend
 from mitsuba_whitted.progress import Progress
 from validation import reference_errors
@@ -44,13 +48,24 @@ BATCHES, SPP = 32, 64
 #: The report's scene: reference resolution and samples per pixel, chosen
 #: so that the whole report renders in well under 20 minutes on 2 cores.
 SCENE_RES, SCENE_SPP = 300, 4096
-#: Speed against error: resolution and reference of each scene.
-SPEED_RES, SPEED_REFERENCE_SPP = 128, 4096
-#: Warm renders timed per setting (their median is its time). Dr.Jit may
-#: record a frozen kernel anew on a later call, when replaying it without
-#: running fails its dry run; five renders keep one such stall out of the
-#: median.
-WARM_RENDERS = 5
+#: Timing rounds of every sweep (each setting timed once in a round).
+ROUNDS = 9
+
+
+@dataclass
+class SpeedSettings:
+    """The scenes of the speed section, their resolution, and the
+    comparison's options (reference spp, path's largest spp, rounds)."""
+
+    scenes: tuple = tuple(SPEED)
+    resolution: int = 128
+    options: CompareOptions = field(default_factory=lambda: CompareOptions(4096, 256, ROUNDS,
+                                                                           False))
+
+    @classmethod
+    def quick(cls) -> "SpeedSettings":
+        """Small films, few rungs and rounds: the section in seconds."""
+        return cls(resolution=32, options=CompareOptions(256, 8, 4, True))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -131,18 +146,19 @@ def report_scene_section(report: MarkdownReport, cache: ReferenceCache, backend)
                     spp=SCENE_SPP, passes=16, integrator={"type": "path", "max_depth": 32})
     reference = cached_reference(cache, key, source, SCENE_SPP, progress=Progress(),
                                  backend=backend)
-    report_look = scene.integrator()
-    physical = mi.load_dict({"type": "whitted", **scene_whitted_settings(scene),
-                             "shadows": "physical", "ambient": {"type": "rgb", "value": [0, 0, 0]}})
-    images = {}
+    base = {"type": "whitted", **scene_whitted_settings(scene)}
+    looks = [Setting("report's look", "whitted", base),
+             Setting("physical", "whitted", {**base, "shadows": "physical",
+                                             "ambient": {"type": "rgb", "value": [0, 0, 0]}})]
+    sweep = run_sweep(scene, reference, looks, {}, ROUNDS, Progress())
+    seconds = time_estimates(sweep)
+    images = {p.label: p.image for p in sweep.points}
     rows = []
-    for label, integrator in (("report's look", report_look), ("physical", physical)):
-        image, first, warm = timed_render(scene, integrator, repeats=WARM_RENDERS)
-        images[label] = image
-        excess = missing_light(reference.image, image).sum() / luminance(reference.image).sum()
-        rows.append([label, number(first), number(warm), number(rel_mse(image, reference.image)),
-                     number(flip_error(image, reference.image)[0]),
-                     f"{100 * missing_energy_share(image, reference.image):.1f}%",
+    for p in sweep.points:
+        excess = missing_light(reference.image, p.image).sum() / luminance(reference.image).sum()
+        rows.append([p.label, number(p.first_seconds), estimate_text(seconds[p.label], digits=3),
+                     number(p.rel_mse), number(p.flip),
+                     f"{100 * missing_energy_share(p.image, reference.image):.1f}%",
                      f"{100 * excess:.1f}%"])
     noise = noise_rel_mse(reference.variance, reference.image)
     report.heading("2. The report's scene")
@@ -154,7 +170,8 @@ def report_scene_section(report: MarkdownReport, cache: ReferenceCache, backend)
         "`shadows=\"physical\"`, where glass casts a shadow as it does for the path tracer. "
         f"Reference: `path` (max_depth 32), {reference.spp} spp in 16 passes, "
         f"{reference.seconds:.0f} s to render; its own noise is a relMSE of {number(noise)}. "
-        "Mitsuba's `path` sees the capped cylinder as its 64-segment proxy mesh.")
+        "Mitsuba's `path` sees the capped cylinder as its 64-segment proxy mesh. "
+        f"{timing_sentence(ROUNDS)}")
     report.table(["Whitted", "first render (s)", "warm render (s)", "relMSE", "FLIP",
                   "light left out", "light added"], rows)
     report.paragraph(
@@ -180,51 +197,35 @@ def report_scene_section(report: MarkdownReport, cache: ReferenceCache, backend)
 
 # ------------------------------------------------------------------ speed/error
 
-def speed_section(report: MarkdownReport, cache: ReferenceCache, backend) -> None:
-    options = CompareOptions(SPEED_REFERENCE_SPP, 256, WARM_RENDERS, False)
+def speed_section(report: MarkdownReport, cache: ReferenceCache, backend,
+                  settings: SpeedSettings | None = None) -> list:
+    """The section, and the comparison of each scene (``settings``: the
+    report's unless given)."""
+    settings = settings or SpeedSettings()
+    options, size = settings.options, settings.resolution
     report.heading("3. Speed against error")
     report.paragraph(
-        f"Each scene at {SPEED_RES} x {SPEED_RES}: Whitted's settings (anti-aliasing modes, "
-        "thresholds, depths) and `path` at 1, 2, 4, ... 256 spp, each timed as the median "
-        f"of {WARM_RENDERS} warm renders, against a "
-        f"{SPEED_REFERENCE_SPP}-spp `path` reference. The *equal-error speed-up* of a Whitted "
-        "setting is the time `path` needs for the same relMSE (interpolated on the log-log "
-        "curve) over Whitted's time; `<`/`>` mark bounds outside the measured range. The "
-        "full report of each scene (images, error maps, every setting) is linked.")
-    rows = []
-    for scene_path in SPEED:
+        f"Each scene at {size} x {size}: Whitted's settings (anti-aliasing modes, thresholds, "
+        f"depths) and `path` at 1, 2, 4, ... {options.path_max_spp} spp with each of its "
+        f"samplers ({', '.join(PATH_SAMPLERS)}), against a {options.reference_spp}-spp "
+        f"`path` reference. {timing_sentence(options.rounds)} "
+        f"{split_sentence(options.converged_side)} {speedup_sentence()} The full report of "
+        "each scene (images, crops, error maps, path's rungs) is linked.")
+    comparisons = []
+    for index, scene_path in enumerate(settings.scenes, start=1):
         out = report.directory / "speed" / scene_path.stem
-        result = compare_scene(scene_path, out, options, {"res": str(SPEED_RES)},
+        result = compare_scene(scene_path, out, options, {"res": str(size)},
                                cache_dir=cache.directory, progress=Progress(),
                                keep_linear=False, backend=backend)
-        rows.append(_speed_row(result, out.relative_to(report.directory)))
-        report.figure(f"speed/{scene_path.stem}/images/speed_vs_error.png",
-                      f"{scene_path.name}: relMSE against time")
-    report.table(["scene", "most accurate Whitted setting", "its relMSE", "its time (s)",
-                  "its equal-error speed-up", "fastest Whitted setting: speed-up",
-                  "path overtakes every Whitted setting at"], rows)
-
-
-def _speed_row(result, out: Path) -> list:
-    """A row of the speed table; ``out`` is the scene's report folder,
-    relative to the report."""
-    results = result.results
-    whitted = [p for p in results["points"] if p["kind"] == "whitted"]
-    best = min(whitted, key=lambda p: p["rel_mse"])
-    fastest = min(whitted, key=lambda p: p["seconds"])
-    cross = results["crossing"]
-
-    def gain(label):
-        g = results["speedups"][label]
-        return speedup_text(g["factor"], g["relation"])
-
-    overtakes = {"=": f"{number(cross['path_seconds'])} s ({number(cross['path_spp'], 2)} spp)",
-                 "<": f"< {number(cross['path_seconds'])} s (1 spp)",
-                 ">": f"> {number(cross['path_seconds'])} s (not within 256 spp)"}
-    link = f"[{result.name}]({out.as_posix()}/report.md)"
-    return [link, best["label"], number(best["rel_mse"]), number(best["seconds"]),
-            gain(best["label"]), f"{fastest['label']}: {gain(fastest['label'])}",
-            overtakes[cross["relation"]]]
+        link = out.relative_to(report.directory).as_posix()
+        report.heading(f"3.{index} [{scene_path.name}]({link}/report.md)", level=3)
+        report.figure(f"{link}/images/speed_vs_error.png",
+                      f"{scene_path.name}: relMSE and FLIP against time")
+        whitted_table(report, result.results)
+        for sentence in verdict_sentences(result.results):
+            report.paragraph(sentence)
+        comparisons.append(result)
+    return comparisons
 
 
 # -------------------------------------------------------------------- stability

@@ -110,7 +110,7 @@ def command_compare(args) -> int:
     from pathlib import Path
 
     import mitsuba_whitted
-    from .compare import CompareOptions, compare_scene
+    from .compare import CompareOptions, Estimate, compare_scene, estimate_text
     from .distributed import backend
 
     options = CompareOptions.make(args.quick, args.reference_spp)
@@ -119,11 +119,12 @@ def command_compare(args) -> int:
     with backend(args.workers, args.cluster) as runner:
         result = compare_scene(args.scene, out, options, _parse_defines(args.define),
                                progress=Progress(), backend=runner)
-    crossing = result.results["crossing"]
+    crossing = result.results["crossing"]["relmse"]
+    seconds = Estimate.from_json(crossing["path_seconds"])
     print(f"{result.report}: reference {result.reference.spp} spp"
           f"{' (cached)' if result.reference.cached else ''}; path overtakes the most "
-          f"accurate Whitted setting ({crossing['label']}) at "
-          f"{crossing['relation'].replace('=', '')}{crossing['path_seconds']:.3g} s")
+          f"accurate Whitted setting in relMSE ({crossing['label']}) at "
+          f"{estimate_text(seconds, ' s')}")
     return 0
 
 

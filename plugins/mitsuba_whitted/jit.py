@@ -7,6 +7,7 @@ every new value would compile a new kernel.
 
 from __future__ import annotations
 
+import gc
 import sys
 import time
 
@@ -173,3 +174,16 @@ def timed(function, repeats: int):
         dr.sync_thread()
         times.append(time.perf_counter() - start)
     return result, times
+
+
+def release_scenes() -> None:
+    """Free the scenes measured so far, and the memory cached for them.
+
+    Every call of a frozen kernel traverses all live instances of the
+    scene's plugin types, not only the scene's own, and the virtual calls
+    of Mitsuba's own integrators reach every live instance too, so scenes
+    kept alive (a cycle of references holds one until the collector runs)
+    would slow every later measurement; so would the memory cached from a
+    large render."""
+    gc.collect()
+    dr.flush_malloc_cache()

@@ -27,8 +27,9 @@ DEFAULT_FILM_SIZE = (768, 576)
 def load_with(path: Path, defines: dict, settings: dict) -> mi.Scene:
     """The scene of ``path`` with ``defines`` (as ``-D``) and ``settings``:
     ``res`` is the film's width in pixels (its height keeps the film's
-    aspect ratio), any other name an integer property of the integrator
-    (``max_depth``, ``aa_max_depth``, ...)."""
+    aspect ratio), ``sampler`` the type of the sensor's sampler, any other
+    name an integer property of the integrator (``max_depth``,
+    ``aa_max_depth``, ...)."""
     path = Path(path)
     if not settings:
         return load_file(path, **defines)
@@ -41,6 +42,8 @@ def load_with(path: Path, defines: dict, settings: dict) -> mi.Scene:
     for name, value in settings.items():
         if name == "res":
             _set_resolution(root, path, defines, int(value))
+        elif name == "sampler":
+            _set_sampler(_element(root, "sensor", path), value)
         else:
             _set_property(_element(root, "integrator", path), "integer", name, int(value),
                           defines)
@@ -81,6 +84,17 @@ def _set_resolution(root: ET.Element, path: Path, defines: dict, width: int) -> 
         _set_property(film, "integer", offset_name, start, defines)
         _set_property(film, "integer", size_name, max(1, min(extent, new[axis] - start)),
                       defines)
+
+
+def _set_sampler(sensor: ET.Element, kind: str) -> None:
+    """The sensor's sampler replaced by one of type ``kind`` that keeps only
+    its sample count (a parameter the scene passes there stays in use; the
+    other properties may be foreign to ``kind``)."""
+    new = ET.SubElement(sensor, "sampler", type=kind)
+    old = sensor.find("sampler")
+    if old is not new:
+        new.extend(old.findall("integer[@name='sample_count']"))
+        sensor.remove(old)
 
 
 def _resolved(root: ET.Element, parent: ET.Element, name: str, default, defines: dict):

@@ -13,7 +13,8 @@ from .bound import CASTS, launch_split, ray_casting_bound
 from . import gradients
 from .equal_error import equal_error_speedup
 from .processes import child_peak_memory, fresh_process_render, peak_rss_mib
-from .timing import release_scenes, scaling_table, time_render
+from ..jit import release_scenes
+from .timing import scaling_table, time_render
 
 DEFAULT_SCENE = Path(__file__).resolve().parents[3] / "scenes" / "cosc363.xml"
 
@@ -40,6 +41,10 @@ class BenchSettings:
     #: every error compared, and path's ladder must reach past Whitted's
     #: best settings.
     equal_error: tuple = (128, 65536, 16384)
+    #: Timing rounds of the equal-error sweep: each times path's two
+    #: ladders up to the largest spp, seconds a round, so fewer than
+    #: ``repeats``.
+    equal_error_rounds: int = 5
     #: Gradients at equal error: resolution, largest prb spp, prb seeds.
     gradient: tuple = (64, 1024, 8)
 
@@ -48,7 +53,8 @@ class BenchSettings:
         """Small sizes and few repeats: every figure, in seconds."""
         return cls(scene, dict(defines or {}), resolution=96, repeats=2, bound_rounds=2,
                    resolutions=(64, 128), depths=(2, 6), aa_depths=(0, 3),
-                   memory_resolutions=(96,), equal_error=(32, 512, 64), gradient=(16, 4, 2))
+                   memory_resolutions=(96,), equal_error=(32, 512, 64), equal_error_rounds=3,
+                   gradient=(16, 4, 2))
 
     @property
     def scene_settings(self) -> dict:
@@ -85,11 +91,11 @@ def headline(scene_path: Path, settings: BenchSettings, report) -> dict:
         "resolution": list(scene.sensors()[0].film().crop_size()),
         "first_render_in_process_s": timing.first,
         "second_render_in_process_s": timing.second,
-        "warm_render_s": timing.warm,
+        "warm_render_s": timing.warm.to_json(),
         "warm_renders_s": timing.warm_all,
         "rays": {k: timing.stats[k] for k in ("camera", "reflection", "refraction", "passthrough",
                                               "shadow", "shadow_march", "refined", "total")},
-        "rays_per_second": timing.stats["total"] / timing.warm,
+        "rays_per_second": timing.stats["total"] / timing.warm.median,
         "aa_samples": timing.stats["aa_samples"],
         "bound": {**{f"{name}_{figure}": values[name] for name in CASTS
                      for figure, values in (("rays", bound.rays), ("s", bound.seconds_by_cast),
@@ -124,10 +130,12 @@ def run(settings: BenchSettings, report=print) -> dict:
     rows = scaling_table(scene_path, settings.defines, settings.scene_settings,
                          {"res": settings.resolutions, "max_depth": settings.depths,
                           "aa_max_depth": settings.aa_depths}, settings.repeats)
-    results["scaling"] = [{"parameter": r.parameter, "value": r.value, "seconds": r.seconds,
+    results["scaling"] = [{"parameter": r.parameter, "value": r.value,
+                           "seconds": r.seconds.to_json(),
                            "rays": r.rays, "rays_per_second": r.rays_per_second} for r in rows]
     report("equal error against path ...")
-    results["equal_error"] = equal_error_speedup(*settings.equal_error, settings.repeats)
+    results["equal_error"] = equal_error_speedup(*settings.equal_error,
+                                                 settings.equal_error_rounds)
     results["gradient"] = gradients.measure(
         scene_path, settings.defines, settings.scene_settings, settings.repeats,
         settings.memory_resolutions[0], settings.gradient, report)

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from ..compare.sweep import RELATION_PREFIX, speedup_text
+from ..compare.intervals import Estimate, estimate_text, verdict_text
+from ..compare.metrics import METRIC_NAMES
 from . import gradients
 from .bound import CASTS
 
@@ -31,6 +32,20 @@ def _split_lines(split: dict) -> list:
     ]
 
 
+def _seconds(estimate: dict) -> str:
+    """A median time and its interval."""
+    return estimate_text(Estimate.from_json(estimate), " s", 3)
+
+
+def _gain_text(row: dict, metric: str) -> str:
+    """A setting's error, path's spp at that error and the speed-up, in ``metric``."""
+    error = row["whitted_rel_mse"] if metric == "relmse" else row["whitted_flip"]
+    path = row["path_at_equal_error"][metric]
+    return (f"\n      {METRIC_NAMES[metric]:<6} {error:.2e}: path "
+            f"{estimate_text(Estimate.from_json(path['spp']), ' spp', 3)} "
+            f"{path['sampler']}, {verdict_text(Estimate.from_json(row['speedup'][metric]))}")
+
+
 def format_table(results: dict) -> str:
     """The benchmark as a plain-text table."""
     rays = results["rays"]
@@ -39,7 +54,7 @@ def format_table(results: dict) -> str:
     lines = [
         f"machine: {results['machine']}",
         f"scene {results['scene']} at {width}x{height} {results['defines']}",
-        f"  warm render (median)        {results['warm_render_s']:8.3f} s",
+        f"  warm render (median)        {_seconds(results['warm_render_s'])}",
         f"  first render in process     {results['first_render_in_process_s']:8.3f} s"
         f"  (second {results['second_render_in_process_s']:.3f} s)",
     ]
@@ -68,19 +83,17 @@ def format_table(results: dict) -> str:
         "  scaling (warm):",
     ]
     for row in results["scaling"]:
-        lines.append(f"    {row['parameter']:>12} = {str(row['value']):>5}  {row['seconds']:8.3f} s"
+        lines.append(f"    {row['parameter']:>12} = {str(row['value']):>5}  "
+                     f"{_seconds(row['seconds'])}"
                      f"  {row['rays']:>12,} rays  {row['rays_per_second'] / 1e6:6.2f} M rays/s")
     eq = results["equal_error"]
-    relation = RELATION_PREFIX[eq["relation"]]
-    lines.append(f"  equal-error speed-up over path: {speedup_text(eq['speedup'], eq['relation'])}"
-                 f" on {eq['scene']}"
-                 f" at {eq['resolution']}^2, {eq['whitted']} (relMSE {eq['whitted_rel_mse']:.2e} in "
-                 f"{eq['whitted_seconds']:.3f} s; path needs {relation}{eq['path_spp']:.0f} spp, "
-                 f"{eq['path_seconds']:.3f} s; reference {eq['reference_spp']} spp, its own noise "
-                 f"relMSE {eq['reference_noise_rel_mse']:.1e})")
-    for row in eq["settings"]:
-        lines.append(f"    {row['whitted']:<46} relMSE {row['whitted_rel_mse']:.2e} "
-                     f"{row['whitted_seconds']:7.3f} s  path "
-                     f"{RELATION_PREFIX[row['relation']]}{row['path_spp']:.0f} spp "
-                     f"{row['path_seconds']:7.3f} s  {speedup_text(row['speedup'], row['relation'])}")
+    lines.append(f"  equal-error speed-up over path on {eq['scene']} at {eq['resolution']}^2 "
+                 f"(reference {eq['reference_spp']} spp, its own noise relMSE "
+                 f"{eq['reference_noise_rel_mse']:.1e}; {eq['rounds']} rounds):")
+    lines += [f"    {row['whitted']:<46} {_seconds(row['whitted_seconds'])}"
+              + "".join(_gain_text(row, metric) for metric in row["speedup"])
+              for row in eq["settings"]]
+    lines.append(f"  headline: {eq['whitted']}, "
+                 + ", ".join(f"{METRIC_NAMES[m]} {verdict_text(Estimate.from_json(s))}"
+                             for m, s in eq["speedup"].items()))
     return "\n".join(lines + gradients.format_lines(results["gradient"]))

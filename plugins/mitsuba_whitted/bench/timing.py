@@ -3,15 +3,13 @@ ones, and the warm time as one setting at a time varies."""
 
 from __future__ import annotations
 
-import gc
-import statistics
 from dataclasses import dataclass
 from pathlib import Path
 
-import drjit as dr
 import mitsuba as mi
 
-from ..jit import timed
+from ..compare.intervals import Estimate, median_estimate
+from ..jit import release_scenes, timed
 from ..overrides import load_with
 
 
@@ -19,21 +17,21 @@ from ..overrides import load_with
 class RenderTiming:
     first: float
     second: float
-    warm: float
+    warm: Estimate
     warm_all: list
     stats: dict
 
 
 def time_render(scene: mi.Scene, integrator, repeats: int) -> RenderTiming:
     """First render (in this process), the second, and the median of the
-    warm renders after them. The second is kept apart: it is the first to
-    replay the kernels the first recorded, and anything that makes it record
-    them again shows there."""
+    warm renders after them with its 95% interval. The second is kept
+    apart: it is the first to replay the kernels the first recorded, and
+    anything that makes it record them again shows there."""
     def render():
         mi.render(scene, integrator=integrator)
 
     (first, second), warm = timed(render, 2)[1], timed(render, repeats)[1]
-    return RenderTiming(first, second, statistics.median(warm), warm,
+    return RenderTiming(first, second, median_estimate(warm), warm,
                         dict(integrator.last_stats))
 
 
@@ -41,23 +39,12 @@ def time_render(scene: mi.Scene, integrator, repeats: int) -> RenderTiming:
 class ScalingRow:
     parameter: str
     value: object
-    seconds: float
+    seconds: Estimate
     rays: int
 
     @property
     def rays_per_second(self) -> float:
-        return self.rays / self.seconds
-
-
-def release_scenes() -> None:
-    """Free the scenes measured so far, and the memory cached for them.
-
-    Every call of a frozen kernel traverses all live instances of the
-    scene's plugin types, not only the scene's own, so scenes kept alive
-    would slow every later measurement; so would the memory cached from a
-    large render."""
-    gc.collect()
-    dr.flush_malloc_cache()
+        return self.rays / self.seconds.median
 
 
 def warm_timing(scene_path: Path, defines: dict, settings: dict, repeats: int) -> RenderTiming:

@@ -53,6 +53,17 @@ def scene_digest(scene_path: str | Path, defines: dict | None = None) -> str:
     return digest.hexdigest()
 
 
+def package_digest() -> str:
+    """SHA-256 of this package's Python sources (each file's path and
+    bytes): it changes with the code of every plugin."""
+    package = Path(__file__).resolve().parents[1]
+    digest = hashlib.sha256()
+    for path in sorted(package.rglob("*.py")):
+        digest.update(path.relative_to(package).as_posix().encode())
+        digest.update(path.read_bytes())
+    return digest.hexdigest()
+
+
 def cache_key(**parts) -> str:
     """SHA-256 of the parts (JSON with sorted keys; other objects by
     ``str``) and of the Mitsuba version and variant."""

@@ -16,6 +16,15 @@ import sys
 
 import numpy as np
 
+#: Each metric of :func:`error_maps` as the reports name it.
+METRIC_NAMES = {"relmse": "relMSE", "flip": "FLIP"}
+#: Side of the square tiles, in pixels, in which each metric's per-pixel
+#: errors are drawn together by the bootstrap (:mod:`.intervals`): wide
+#: enough that errors in different tiles go their own ways. A path image's
+#: per-pixel squared errors are independent from pixel to pixel; FLIP
+#: filters the images before it compares them, with filters about 19
+#: pixels across at its default 67 pixels per degree.
+TILE_SIDES = {"relmse": 8, "flip": 16}
 #: Rec. 709 luminance weights, as Mitsuba's ``luminance()``.
 LUMINANCE = np.array([0.212671, 0.715160, 0.072169])
 
@@ -29,6 +38,17 @@ def rel_squared_error(image: np.ndarray, reference: np.ndarray, eps: float = 1e-
     """Per-pixel relative squared error, averaged over the colour channels."""
     error = (image[..., :3] - reference[..., :3]) ** 2 / (reference[..., :3] ** 2 + eps)
     return error.mean(axis=-1)
+
+
+def error_maps(image: np.ndarray, reference: np.ndarray) -> dict:
+    """Per-pixel error of each metric whose mean is its image error:
+    ``relmse`` (:func:`rel_squared_error`) and, where the package is
+    installed, ``flip`` (HDR-FLIP)."""
+    maps = {"relmse": rel_squared_error(image, reference)}
+    flip_map = flip_error(image, reference)[1]
+    if flip_map is not None:
+        maps["flip"] = flip_map.astype(np.float64)
+    return maps
 
 
 def rmse(image: np.ndarray, reference: np.ndarray) -> float:

@@ -1,36 +1,49 @@
 """A Markdown report with PNG images and matplotlib plots.
 
-Images are tone mapped with the sRGB curve (``imageio.to_8bit``); error
-and energy maps use a colour map with a colour bar, so their values can be
-read off. Every link is relative to the report's directory, so the report
+Images are tone mapped with the sRGB curve (``imageio.to_8bit``) and
+written pixel for pixel, crops enlarged by whole factors; error and energy
+maps use a colour map with a colour bar, so their values can be read off. Every link is relative to the report's directory, so the report
 can be moved or committed as a whole.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ..files import write_atomically, write_text
 from ..imageio import write_image
+from .intervals import tile_sums
+from .metrics import TILE_SIDES
 
-#: Widest PNG a report holds; larger renders are box-filtered down.
-MAX_WIDTH = 300
 #: Marker shapes that tell the Whitted settings apart in the speed plot.
 _MARKERS = "sD^vP*Xph<>"
+#: Narrowest a map's own area in a heatmap is shown, in pixels: smaller
+#: maps are enlarged (each value a block), larger ones shown pixel for pixel.
+MIN_MAP_WIDTH = 288
+#: Dots per inch of the heatmaps, and the width their colour bar takes.
+_DPI = 100
+_COLOUR_BAR_WIDTH = 100
 
 
-def fit_width(image: np.ndarray, width: int = MAX_WIDTH) -> np.ndarray:
-    """Box-filter ``image`` by the smallest integer factor that fits ``width``."""
-    factor = math.ceil(image.shape[1] / width)
-    if factor <= 1:
-        return image
-    height, columns = (image.shape[0] // factor) * factor, (image.shape[1] // factor) * factor
-    blocks = image[:height, :columns].reshape(height // factor, factor, columns // factor,
-                                              factor, *image.shape[2:])
-    return blocks.mean(axis=(1, 3))
+def upscaled(image: np.ndarray, factor: int) -> np.ndarray:
+    """Each pixel of ``image`` as a ``factor`` x ``factor`` block (nearest
+    neighbour: the pixels stay visible as they are)."""
+    return np.repeat(np.repeat(image, factor, axis=0), factor, axis=1)
+
+
+def worst_window(values: np.ndarray, side: int,
+                 tile: int = TILE_SIDES["relmse"]) -> tuple[int, int]:
+    """Top-left corner of a ``side``-pixel square of ``values`` centred on
+    the ``tile``-pixel tile with the largest sum (kept inside the map)."""
+    sums = tile_sums(values, tile)
+    columns = -(-values.shape[1] // tile)
+    row, column = divmod(int(np.argmax(sums)), columns)
+    return tuple(int(np.clip(tile * index + tile // 2 - side // 2, 0, size - side))
+                 for index, size in ((row, values.shape[0]), (column, values.shape[1])))
 
 
 def number(value: float, digits: int = 3) -> str:
@@ -78,10 +91,18 @@ class MarkdownReport:
         return self.directory / self.image_dir / name, f"{self.image_dir}/{name}"
 
     def image(self, name: str, image: np.ndarray) -> str:
-        """Write a linear RGB image as an sRGB PNG; returns its link."""
+        """Write a linear RGB image as an sRGB PNG, pixel for pixel; returns
+        its link."""
         path, link = self._target(name)
-        write_image(path, fit_width(np.asarray(image, dtype=np.float32)[..., :3]))
+        write_image(path, np.asarray(image, dtype=np.float32)[..., :3])
         return link
+
+    def crop(self, name: str, image: np.ndarray, corner: tuple[int, int], side: int,
+             factor: int) -> str:
+        """The ``side``-pixel square of ``image`` at ``corner``, each pixel
+        enlarged to ``factor`` x ``factor``, as an sRGB PNG; its link."""
+        top, left = corner
+        return self.image(name, upscaled(image[top:top + side, left:left + side], factor))
 
     def linear(self, name: str, image: np.ndarray) -> str:
         """Write a linear float image (EXR) for exact recomputation."""
@@ -91,49 +112,116 @@ class MarkdownReport:
 
     def heatmap(self, name: str, values: np.ndarray, label: str, vmax: float | None = None,
                 cmap: str = "inferno") -> str:
-        """A scalar map with a colour bar labelled ``label``."""
+        """A scalar map with a colour bar labelled ``label``, the map pixel
+        for pixel (enlarged by a whole factor up to :data:`MIN_MAP_WIDTH`)."""
         plt = _pyplot()
         path, link = self._target(name)
-        values = fit_width(values)
         vmax = vmax if vmax else max(float(np.percentile(values, 99.5)), 1e-12)
         height, width = values.shape
-        figure, axes = plt.subplots(figsize=(3.2, 3.2 * height / width + 0.2), dpi=90)
-        shown = axes.imshow(values, cmap=cmap, vmin=0, vmax=vmax, interpolation="nearest")
+        factor = max(1, -(-MIN_MAP_WIDTH // width))
+        shown = width * factor
+        total = shown + _COLOUR_BAR_WIDTH
+        figure = plt.figure(figsize=(total / _DPI, height * factor / _DPI), dpi=_DPI)
+        axes = figure.add_axes((0, 0, shown / total, 1))
+        bar = figure.add_axes(((shown + 8) / total, 0.05, 12 / total, 0.9))
+        mapped = axes.imshow(values, cmap=cmap, vmin=0, vmax=vmax, interpolation="nearest")
         axes.set_axis_off()
-        figure.colorbar(shown, ax=axes, fraction=0.046, pad=0.04).set_label(label, fontsize=8)
-        _save(figure, path, bbox_inches="tight", pad_inches=0.04)
-        return link
-
-    def speed_plot(self, name: str, points, title: str, noise_floor: float | None = None) -> str:
-        """relMSE against warm render time, both logarithmic: the path curve
-        through its spp ladder and one marker per Whitted setting."""
-        plt = _pyplot()
-        path, link = self._target(name)
-        figure, axes = plt.subplots(figsize=(7.6, 4.2), dpi=80)
-        curve = sorted((p for p in points if p.kind == "path"), key=lambda p: p.spp)
-        axes.plot([p.seconds for p in curve], [p.rel_mse for p in curve], "o-",
-                  color="tab:blue", label="path (1, 2, 4, ... spp)")
-        for p in curve[::2]:
-            axes.annotate(f"{p.spp}", (p.seconds, p.rel_mse), textcoords="offset points",
-                          xytext=(3, 3), fontsize=7, color="tab:blue")
-        whitted = [p for p in points if p.kind == "whitted"]
-        colours = plt.get_cmap("tab10")
-        for index, p in enumerate(whitted):
-            axes.plot(p.seconds, p.rel_mse, _MARKERS[index % len(_MARKERS)], markersize=7,
-                      color=colours((index + 1) % 10), label=f"whitted: {p.label}")
-        if noise_floor:
-            axes.axhline(noise_floor, color="grey", linestyle="--", linewidth=1,
-                         label="reference's own noise")
-        axes.set_xscale("log")
-        axes.set_yscale("log")
-        axes.set_xlabel("warm render time (s)")
-        axes.set_ylabel("relMSE against the reference")
-        axes.set_title(title, fontsize=10)
-        axes.grid(True, which="both", alpha=0.3)
-        axes.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0))
-        figure.tight_layout()
+        figure.colorbar(mapped, cax=bar).set_label(label, fontsize=8)
+        bar.tick_params(labelsize=7)
         _save(figure, path)
         return link
+
+    def speed_plot(self, name: str, panels: list["Panel"], title: str) -> str:
+        """Error against warm render time, both logarithmic, one panel per
+        metric: path's curves, and for each Whitted setting its total error
+        (filled) above its sampling error (hollow), and the model's bias
+        as a line."""
+        plt = _pyplot()
+        path, link = self._target(name)
+        figure, axes_row = plt.subplots(1, len(panels), figsize=(6.2 * len(panels) + 2.6, 4.6),
+                                        dpi=100, squeeze=False)
+        for axes, panel in zip(axes_row[0], panels):
+            _draw_panel(axes, panel, plt.get_cmap("tab10"))
+        handles, labels = axes_row[0][0].get_legend_handles_labels()
+        figure.legend(handles, labels, fontsize=7, loc="upper left", bbox_to_anchor=(0.79, 0.95))
+        figure.suptitle(title, fontsize=10)
+        figure.tight_layout(rect=(0, 0, 0.79, 1))
+        _save(figure, path)
+        return link
+
+
+@dataclass
+class Curve:
+    """One of path's ladders: its time, error and spp at each rung."""
+
+    label: str
+    seconds: list
+    errors: list
+    spp: list
+
+
+@dataclass
+class Marker:
+    """A Whitted setting: its time, total error and sampling error."""
+
+    label: str
+    seconds: float
+    total: float
+    sampling: float
+
+
+@dataclass
+class Panel:
+    """One metric's panel of the speed plot; ``biases`` are (label, error)
+    pairs, ``floor`` the reference's own noise in this metric if known."""
+
+    metric: str
+    curves: list
+    markers: list
+    biases: list
+    floor: float | None = None
+
+
+#: Where each model's bias line is labelled, in turn (models often err
+#: alike, and their labels would cover one another at one place): the
+#: share of the axes' width, the alignment, and the shift in points.
+_BIAS_LABELS = ((1.0, "right", -2), (0.0, "left", 2), (0.5, "center", 0))
+#: Colour and line of each of path's curves, in turn.
+_CURVE_STYLES = (("tab:blue", "o-"), ("tab:cyan", "s--"), ("tab:purple", "^:"))
+
+
+def _draw_panel(axes, panel: Panel, colours) -> None:
+    for curve, (colour, style) in zip(panel.curves, _CURVE_STYLES):
+        axes.plot(curve.seconds, curve.errors, style, color=colour, markersize=4,
+                  label=f"path, {curve.label} ({curve.spp[0]} to {curve.spp[-1]} spp)")
+    first = panel.curves[0]
+    for seconds, error, spp in list(zip(first.seconds, first.errors, first.spp))[::2]:
+        axes.annotate(f"{spp}", (seconds, error), textcoords="offset points", xytext=(3, 3),
+                      fontsize=6, color=_CURVE_STYLES[0][0])
+    for index, marker in enumerate(panel.markers):
+        colour, shape = colours((index + 1) % 10), _MARKERS[index % len(_MARKERS)]
+        axes.plot([marker.seconds] * 2, [marker.total, marker.sampling], "-", color=colour,
+                  alpha=0.4, linewidth=1)
+        axes.plot(marker.seconds, marker.total, shape, color=colour, markersize=7,
+                  label=f"whitted: {marker.label}")
+        axes.plot(marker.seconds, marker.sampling, shape, color=colour, markersize=7,
+                  markerfacecolor="none")
+    for index, (label, error) in enumerate(panel.biases):
+        place, align, shift = _BIAS_LABELS[index % len(_BIAS_LABELS)]
+        axes.axhline(error, color="grey", linestyle=(0, (1, 1 + index)), linewidth=1)
+        axes.annotate(f"model bias: {label}", (place, error), xycoords=("axes fraction", "data"),
+                      xytext=(shift, 2), textcoords="offset points", ha=align, fontsize=6,
+                      color="dimgrey")
+    if panel.floor:
+        axes.axhline(panel.floor, color="grey", linestyle="--", linewidth=1,
+                     label="reference's own noise")
+    axes.plot([], [], "o", color="grey", markerfacecolor="none",
+              label="hollow: sampling error (against Whitted converged)")
+    axes.set_xscale("log")
+    axes.set_yscale("log")
+    axes.set_xlabel("warm render time (s), median of the rounds")
+    axes.set_ylabel(f"{panel.metric} against the reference")
+    axes.grid(True, which="both", alpha=0.3)
 
 
 def _save(figure, path: Path, **options) -> None:

@@ -1,7 +1,9 @@
 """The comparison of one scene file (``mitsuba-whitted compare``): a cached
-path reference, the speed-against-error sweep, and a Markdown report with
-images, error maps, a table, the error-against-time plot and
-``results.json`` holding every number in it.
+path reference, the speed-against-error sweep, Whitted's error split into
+its sampling error and its model's bias, and a Markdown report with
+images, error maps, crops, tables, the error-against-time plot and
+``results.json`` holding every number in it (its keys are described in
+the README, section *Speed against error*).
 """
 
 from __future__ import annotations
@@ -20,13 +22,21 @@ from ..files import check_readable, write_text
 from ..film_format import developed_format, develops_to_rgb
 from ..system import machine
 from .cache import ReferenceCache, cache_key
-from .metrics import missing_energy_share, missing_light, noise_rel_mse, rel_squared_error
+from .converged import CONVERGED_SIDE, QUICK_SIDE, converged_renders, mean_errors
+from .equal_error import Analysis, Gain, analyse, gains_json
+from .intervals import (RELATION_PREFIX, REPLICATES, SEED, TAIL, Estimate, estimate_text,
+                        verdict_text)
+from .metrics import (METRIC_NAMES, TILE_SIDES, missing_energy_share, missing_light, noise_rel_mse,
+                      rel_squared_error)
 from .reference import Reference, cached_reference, path_settings
-from .report import MarkdownReport, number
-from .sweep import (SweepPoint, crossing, path_spp_ladder, run_sweep, scene_whitted_settings,
-                    speedup_text, speedups, whitted_variants)
+from .report import Curve, MarkdownReport, Marker, Panel, number, worst_window
+from .sweep import (Sweep, SweepPoint, path_ladder, run_sweep, sampler_sensors,
+                    scene_whitted_settings, whitted_settings, whitted_variants)
 
 REFERENCE_PASSES = 16
+#: Side of the zoomed crops, in pixels of the image, and their width once
+#: enlarged.
+CROP_SIDE, CROP_WIDTH = 24, 192
 
 
 class CompareError(ValueError):
@@ -37,7 +47,7 @@ class CompareError(ValueError):
 class CompareOptions:
     reference_spp: int
     path_max_spp: int
-    repeats: int    # warm renders per setting (their median is its time)
+    rounds: int          # timing rounds (every setting once in each)
     quick: bool
 
     @classmethod
@@ -47,16 +57,22 @@ class CompareOptions:
                                f"{REFERENCE_PASSES} (got {reference_spp}).")
         if quick:
             spp = reference_spp or 64
-            return cls(spp, min(16, spp // 4), 2, True)
+            return cls(spp, min(16, spp // 4), 4, True)
         spp = reference_spp or 1024
-        return cls(spp, min(256, spp // 4), 3, False)
+        return cls(spp, min(256, spp // 4), 7, False)
+
+    @property
+    def converged_side(self) -> int:
+        return QUICK_SIDE if self.quick else CONVERGED_SIDE
 
 
 @dataclass
 class SceneComparison:
     name: str
     reference: Reference
-    points: list[SweepPoint]
+    sweep: Sweep
+    analysis: Analysis
+    converged: dict
     report: Path
     results: dict
 
@@ -78,9 +94,9 @@ def load_scene(path: str | Path, defines: dict | None = None) -> mi.Scene:
 def compare_scene(scene_path: str | Path, out_dir: str | Path, options: CompareOptions,
                   defines: dict | None = None, cache_dir: str | Path | None = None,
                   progress=None, keep_linear: bool = True, backend=None) -> SceneComparison:
-    """Render, measure and report; the reference is cached in ``cache_dir``
-    (default ``<out_dir>/cache``) and rendered by ``backend`` (default: in
-    this process)."""
+    """Render, measure and report; the reference and the converged Whitted
+    renders are cached in ``cache_dir`` (default ``<out_dir>/cache``), the
+    reference rendered by ``backend`` (default: in this process)."""
     scene_path, out_dir = Path(scene_path), Path(out_dir)
     scene = load_scene(scene_path, defines)
     source = SceneSource(scene_path, defines or {}, scene)
@@ -92,13 +108,18 @@ def compare_scene(scene_path: str | Path, out_dir: str | Path, options: CompareO
                                  settings, progress, backend)
     _finish(progress)
     variants = whitted_variants(scene_whitted_settings(scene), options.quick)
-    points = run_sweep(scene, reference, variants, path_spp_ladder(options.path_max_spp),
-                       options.repeats, progress=progress)
+    sweep = run_sweep(scene, reference,
+                      whitted_settings(variants) + path_ladder(options.path_max_spp),
+                      sampler_sensors(scene_path, defines or {}), options.rounds, progress)
     _finish(progress)
-    results = _results(scene_path.name, reference, points)
+    analysis = analyse(sweep)
+    converged = converged_renders(scene, source.digest, variants, cache, options.converged_side)
+    results = _results(scene_path.name, reference, sweep, analysis, converged, options)
     results["film_filter"] = scene.sensors()[0].film().rfilter().class_name()
-    report = _write_report(out_dir, scene_path, defines, reference, points, results, keep_linear)
-    return SceneComparison(scene_path.stem, reference, points, report, results)
+    report = _write_report(out_dir, scene_path, defines, reference, sweep, converged, results,
+                           keep_linear)
+    return SceneComparison(scene_path.stem, reference, sweep, analysis, converged, report,
+                           results)
 
 
 def _finish(progress):
@@ -110,34 +131,77 @@ def slug(label: str) -> str:
     return re.sub(r"[^a-z0-9]+", "_", label.lower()).strip("_")
 
 
-def _results(name: str, reference: Reference, points: list[SweepPoint]) -> dict:
+# ---------------------------------------------------------------- results
+
+def _results(name: str, reference: Reference, sweep: Sweep, analysis: Analysis,
+             converged: dict, options: CompareOptions) -> dict:
     """Every number of the report, keyed for machines."""
-    gains = speedups(points)
-    best = crossing(points)
+    renders = list({id(c): c for c in converged.values()}.values())
+    biases = {id(c): mean_errors(c.image, reference.image) for c in renders}
+    shown = {p.label for p in shown_rungs(sweep)}
     return {
         "scene": name,
         "reference": {"spp": reference.spp, "passes": REFERENCE_PASSES,
                       "seconds": reference.seconds, "cached": reference.cached,
                       "noise_rel_mse": noise_rel_mse(reference.variance, reference.image),
                       "size": list(reference.image.shape[:2])},
-        "points": [{"label": p.label, "kind": p.kind, "spp": p.spp, "seconds": p.seconds,
-                    "first_seconds": p.first_seconds, "rel_mse": p.rel_mse, "rmse": p.rmse,
-                    "flip": p.flip, "image": slug(p.label)} for p in points],
-        "speedups": {g.point.label: {"factor": g.factor, "relation": g.path.relation,
-                                     "path_seconds": g.path.seconds, "path_spp": g.path.spp}
-                     for g in gains},
-        "crossing": {"label": best.point.label, "path_seconds": best.path.seconds,
-                     "path_spp": best.path.spp, "relation": best.path.relation},
-        "missing_energy_share": missing_energy_share(_first_whitted(points).image,
+        "metrics": sweep.metrics,
+        "timing": {"rounds": options.rounds, "replicates": REPLICATES, "seed": SEED,
+                   "tiles": TILE_SIDES, "interval": 1 - 2 * TAIL},
+        "converged": {"side": options.converged_side,
+                      "renders": [{"settings": c.settings, "seconds": c.seconds,
+                                   "cached": c.cached} for c in renders]},
+        "whitted": {p.label: {**_point_entry(p, analysis, True),
+                              **_split_entry(p, converged[p.label], biases),
+                              **gains_json(analysis.gains[p.label])}
+                    for p in sweep.of_kind("whitted")},
+        "path": {sampler: [{**_point_entry(sweep.points[i], analysis, sweep.points[i].label
+                                           in shown), "spp": sweep.points[i].spp}
+                           for i in columns]
+                 for sampler, columns, _ in sweep.path_curves()},
+        "crossing": {metric: _crossing_entry(*analysis.crossing(sweep, metric))
+                     for metric in sweep.metrics},
+        "missing_energy_share": missing_energy_share(_first_whitted(sweep).image,
                                                      reference.image),
     }
 
 
-def _first_whitted(points):
-    return next(p for p in points if p.kind == "whitted")
+def _point_entry(point: SweepPoint, analysis: Analysis, has_image: bool) -> dict:
+    entry = {"first_seconds": point.first_seconds,
+             "seconds": analysis.seconds[point.label].to_json(),
+             "rel_mse": point.rel_mse, "rmse": point.rmse, "flip": point.flip}
+    return {**entry, "image": slug(point.label)} if has_image else entry
 
 
-def _write_report(out_dir, scene_path, defines, reference, points, results, keep_linear):
+def _split_entry(point: SweepPoint, converged, biases: dict) -> dict:
+    return {"settings": point.setting.integrator,
+            "sampling_error": mean_errors(point.image, converged.image),
+            "model_bias": biases[id(converged)]}
+
+
+def _crossing_entry(point: SweepPoint, gain: Gain) -> dict:
+    return {"label": point.label, "path_seconds": gain.path_seconds.to_json(),
+            "path_spp": gain.path_spp.to_json(), "sampler": gain.sampler}
+
+
+def _first_whitted(sweep: Sweep) -> SweepPoint:
+    return sweep.of_kind("whitted")[0]
+
+
+def shown_rungs(sweep: Sweep) -> list[SweepPoint]:
+    """The rungs of path's ladders whose images the report shows: the
+    first, the middle and the last of each sampler's."""
+    shown = []
+    for _, columns, _ in sweep.path_curves():
+        shown += [sweep.points[columns[i]] for i in sorted({0, len(columns) // 2,
+                                                            len(columns) - 1})]
+    return shown
+
+
+# ----------------------------------------------------------------- report
+
+def _write_report(out_dir, scene_path, defines, reference, sweep, converged, results,
+                  keep_linear):
     report = MarkdownReport(out_dir, f"Whitted against path tracing: {scene_path.name}")
     height, width = reference.image.shape[:2]
     defined = ", ".join(f"{k}={v}" for k, v in (defines or {}).items())
@@ -148,8 +212,7 @@ def _write_report(out_dir, scene_path, defines, reference, points, results, keep
         f"{reference.spp} spp in {REFERENCE_PASSES} independent passes, {origin} "
         f"({reference.seconds:.1f} s to render); its own noise, estimated from the spread of "
         f"the passes, is a relMSE of {number(results['reference']['noise_rel_mse'])}. "
-        f"Times are the median of warm renders (kernels compiled), "
-        f"the first render's time is shown apart. Machine: {machine()}.")
+        f"{timing_sentence(results['timing']['rounds'])} Machine: {machine()}.")
     if results["film_filter"] != "BoxFilter":
         report.paragraph(
             f"Note: the film's reconstruction filter is `{results['film_filter']}`; the path "
@@ -157,53 +220,169 @@ def _write_report(out_dir, scene_path, defines, reference, points, results, keep
             "so edges differ a little even where both agree. A `box` rfilter avoids this.")
     if keep_linear:
         report.linear("reference.exr", reference.image)
-    _error_table(report, points, results)
-    best = results["crossing"]
-    report.paragraph(_crossing_sentence(best, results))
-    report.figure(report.speed_plot("speed_vs_error.png", points, f"{scene_path.name}: "
-                                    "error against time",
-                                    results["reference"]["noise_rel_mse"]),
-                  "relMSE against render time")
-    _image_grid(report, reference, points, keep_linear)
-    _missing_light(report, reference, points, results)
+    _error_tables(report, results)
+    report.figure(report.speed_plot("speed_vs_error.png", speed_panels(results),
+                                    f"{scene_path.name}: error against time"),
+                  "error against render time, relMSE and FLIP")
+    _image_grid(report, reference, sweep, converged, keep_linear)
+    _missing_light(report, reference, sweep, results)
     write_text(Path(out_dir) / "results.json", json.dumps(results, indent=1))
     return report.write("report.md")
 
 
-def _error_table(report, points, results):
+def timing_sentence(rounds: int) -> str:
+    """How the times and their intervals of a sweep of ``rounds`` rounds
+    were measured."""
+    return (f"Times: every setting rendered once to compile (*first render*) and once more "
+            f"untimed, then timed once in each of {rounds} rounds, in an order shuffled anew "
+            "in every round (Whitted's and path's settings, where both are timed, taking "
+            "turns); a time is the median of the rounds with its "
+            f"{1 - 2 * TAIL:.0%} interval, from {REPLICATES} bootstrap replicates that draw "
+            "the rounds with replacement (the same draws for every setting).")
+
+
+def split_sentence(side: int) -> str:
+    """What the two parts of a Whitted setting's error are."""
+    return ("*Sampling error*: the setting's image against Whitted's own converged render "
+            f"(the same settings with a {side} x {side} grid in every pixel); *model bias*: "
+            "that converged render against path's reference, what no anti-aliasing can "
+            "remove. The total is near their sum where the two are unrelated.")
+
+
+def speedup_sentence() -> str:
+    """What an equal-error speed-up, its interval and its verdict are."""
+    tiles = " and ".join(f"{side} for {METRIC_NAMES[metric]}"
+                         for metric, side in TILE_SIDES.items())
+    return ("*Equal-error speed-up*, in each metric apart: the time `path` needs for the "
+            "setting's error, on the faster of its two samplers' curves there (interpolated "
+            "on the log-log curve), over the setting's time. Path's time there comes from the "
+            "same bootstrap, whose replicates also draw square tiles of the error maps with "
+            f"replacement (the same tiles for every image; pixels a side: {tiles}) and "
+            "interpolate again; the speed-up's interval runs from path's lowest time over "
+            "the setting's highest to the reverse. *faster* or *slower* only where the "
+            "interval excludes 1, else *tie*. `<` and `>` mark bounds, where the error lies "
+            "outside path's measured range (`<`: its 1-spp render is already as accurate; "
+            "`>`: its most samples do not reach it), their intervals open at one end.")
+
+
+def _error_tables(report, results):
     report.heading("Error and time")
-    rows = []
-    for p in points:
-        gain = results["speedups"].get(p.label)
-        equal = (f"{number(gain['path_seconds'])} s ({number(gain['path_spp'], 2)} spp)"
-                 if gain else "")
-        factor = speedup_text(gain["factor"], gain["relation"]) if gain else ""
-        rows.append([p.label, number(p.first_seconds), number(p.seconds), number(p.rel_mse),
-                     number(p.rmse), number(p.flip), equal, factor])
-    report.table(["setting", "first render (s)", "warm render (s)", "relMSE", "RMSE", "FLIP",
-                  "path at equal relMSE", "equal-error speed-up"], rows)
-    report.paragraph(
-        "Equal-error speed-up: the time `path` needs for Whitted's relMSE (interpolated on "
-        "the log-log path curve) over Whitted's time; `<` or `>` marks a bound where that "
-        "error lies outside the measured spp range.")
+    whitted_table(report, results)
+    report.paragraph(f"{split_sentence(results['converged']['side'])} {speedup_sentence()}")
+    report.table(["path", "spp", "first render (s)", "warm render (s)", "relMSE", "RMSE",
+                  "FLIP"],
+                 [[sampler, rung["spp"], number(rung["first_seconds"]),
+                   _seconds(rung["seconds"]), number(rung["rel_mse"]), number(rung["rmse"]),
+                   number(rung["flip"])]
+                  for sampler, rungs in results["path"].items() for rung in rungs])
+    for sentence in verdict_sentences(results):
+        report.paragraph(sentence)
 
 
-def _crossing_sentence(best, results) -> str:
-    where = {"=": f"at {number(best['path_seconds'])} s (about {number(best['path_spp'], 2)} "
-                  "spp)",
-             "<": f"already at 1 spp ({number(best['path_seconds'])} s)",
-             ">": f"beyond the measured range (after {number(best['path_seconds'])} s)"}
-    return (f"The curves cross {where[best['relation']]}: from there on `path` is more "
-            f"accurate than the most accurate Whitted setting here ({best['label']}).")
+def whitted_table(report: MarkdownReport, results: dict) -> None:
+    """Each Whitted setting of ``results``: its times, its error split in
+    each metric, its speed-up in each metric with interval and verdict."""
+    metrics = results["metrics"]
+    rows = [[label, number(entry["first_seconds"]), _seconds(entry["seconds"])]
+            + [_split_cell(entry, metric) for metric in metrics]
+            + [_gain_cell(entry, metric) for metric in metrics]
+            for label, entry in results["whitted"].items()]
+    report.table(["Whitted setting", "first render (s)", "warm render (s)"]
+                 + [f"{METRIC_NAMES[m]}: total / sampling / model bias" for m in metrics]
+                 + [f"speed-up at equal {METRIC_NAMES[m]}; path there" for m in metrics],
+                 rows)
 
 
-def _image_grid(report, reference, points, keep_linear):
-    """Every Whitted setting and three rungs of the path ladder (1 spp,
-    the middle, the most), each with its error map on one colour scale."""
+def verdict_sentences(results: dict) -> list[str]:
+    """Where the metrics' verdicts differ, and where path overtakes the
+    most accurate Whitted setting in each metric."""
+    return disagreements(results) + [crossing_sentence(results["crossing"][metric], metric)
+                                     for metric in results["metrics"]]
+
+
+def _seconds(estimate: dict) -> str:
+    return estimate_text(Estimate.from_json(estimate), digits=3)
+
+
+def _split_cell(entry: dict, metric: str) -> str:
+    total = entry["rel_mse"] if metric == "relmse" else entry["flip"]
+    return (f"{number(total)} / {number(entry['sampling_error'][metric])} / "
+            f"{number(entry['model_bias'][metric])}")
+
+
+def _gain_cell(entry: dict, metric: str) -> str:
+    path = entry["path_at_equal_error"][metric]
+    seconds, spp = (Estimate.from_json(path[key]) for key in ("seconds", "spp"))
+    return (f"{verdict_text(Estimate.from_json(entry['speedup'][metric]))}; path "
+            f"{RELATION_PREFIX[seconds.relation]}{number(seconds.median)} s, "
+            f"{number(spp.median, 2)} spp, {path['sampler']}")
+
+
+#: A verdict in a sentence.
+VERDICT_WORDS = {"faster": "faster", "slower": "slower", "tie": "a tie"}
+
+
+def disagreements(results: dict) -> list[str]:
+    """A sentence for each Whitted setting whose verdicts differ between
+    the metrics."""
+    sentences = []
+    for label, entry in results["whitted"].items():
+        verdicts = entry["verdict"]
+        if len(set(verdicts.values())) > 1:
+            said = [f"at equal {METRIC_NAMES[m]} it is {VERDICT_WORDS[v]} "
+                    f"({estimate_text(Estimate.from_json(entry['speedup'][m]), 'x')})"
+                    for m, v in verdicts.items()]
+            sentences.append(f"The metrics disagree on *{label}*: {' while '.join(said)}.")
+    return sentences
+
+
+def crossing_sentence(cross: dict, metric: str) -> str:
+    """Where path overtakes the most accurate Whitted setting in ``metric``."""
+    seconds, spp = Estimate.from_json(cross["path_seconds"]), Estimate.from_json(cross["path_spp"])
+    where = {"=": f"at {estimate_text(seconds, ' s')}, about {estimate_text(spp, ' spp')} "
+                  f"with {cross['sampler']}",
+             "<": f"already at 1 spp ({estimate_text(seconds, ' s')})",
+             ">": f"beyond the measured range (after {estimate_text(seconds, ' s')})"}
+    return (f"In {METRIC_NAMES[metric]}, path's curves cross {where[seconds.relation]}: from "
+            f"there on `path` is more accurate than the most accurate Whitted setting here "
+            f"({cross['label']}).")
+
+
+def speed_panels(results: dict) -> list[Panel]:
+    """The speed plot's panels, one per metric, from ``results``."""
+    return [Panel(METRIC_NAMES[metric],
+                  [Curve(sampler, [r["seconds"]["median"] for r in rungs],
+                         [r[_TOTAL[metric]] for r in rungs], [r["spp"] for r in rungs])
+                   for sampler, rungs in results["path"].items()],
+                  [Marker(label, entry["seconds"]["median"], entry[_TOTAL[metric]],
+                          entry["sampling_error"][metric])
+                   for label, entry in results["whitted"].items()],
+                  _biases(results, metric),
+                  results["reference"]["noise_rel_mse"] if metric == "relmse" else None)
+            for metric in results["metrics"]]
+
+
+#: The key of each metric's total error in a point's entry.
+_TOTAL = {"relmse": "rel_mse", "flip": "flip"}
+
+
+def _biases(results: dict, metric: str) -> list[tuple[str, float]]:
+    """Each distinct model's bias, named by the first setting of that model
+    and how many more share it."""
+    models = {}
+    for label, entry in results["whitted"].items():
+        models.setdefault(json.dumps(entry["model_bias"], sort_keys=True), []).append(label)
+    return [(labels[0] + (f" +{len(labels) - 1}" if len(labels) > 1 else ""),
+             results["whitted"][labels[0]]["model_bias"][metric])
+            for labels in models.values()]
+
+
+def _image_grid(report, reference, sweep, converged, keep_linear):
+    """Every Whitted setting and three rungs of each path ladder at full
+    size, each with its error map on one colour scale; then crops where
+    anti-aliasing matters most."""
     report.heading("Images and error maps")
-    path = [p for p in points if p.kind == "path"]
-    rungs = sorted({0, len(path) // 2, len(path) - 1})
-    shown = [p for p in points if p.kind == "whitted"] + [path[i] for i in rungs]
+    shown = sweep.of_kind("whitted") + shown_rungs(sweep)
     maps = [rel_squared_error(p.image, reference.image) for p in shown]
     vmax = max(float(np.percentile(np.concatenate([m.ravel() for m in maps]), 99.5)), 1e-12)
     report.figures([(report.image("reference.png", reference.image), "path reference")])
@@ -214,10 +393,36 @@ def _image_grid(report, reference, points, keep_linear):
         report.figures([(report.image(f"{name}.png", p.image), p.label),
                         (report.heatmap(f"{name}_error.png", error, "relative squared error",
                                         vmax), f"{p.label}: error")])
+    _crops(report, reference, sweep, converged)
 
 
-def _missing_light(report, reference, points, results):
-    point = _first_whitted(points)
+def _crops(report, reference, sweep, converged):
+    """The same square of every Whitted image, of its converged render and
+    of the reference, enlarged: the square where the setting with the
+    largest sampling error errs most against its converged render."""
+    whitted = sweep.of_kind("whitted")
+    sampling = {p.label: rel_squared_error(p.image, converged[p.label].image) for p in whitted}
+    coarsest = max(whitted, key=lambda p: float(np.mean(sampling[p.label])))
+    side = min(CROP_SIDE, *reference.image.shape[:2])
+    corner = worst_window(sampling[coarsest.label], side)
+    factor = max(1, CROP_WIDTH // side)
+    report.heading("Where anti-aliasing matters", level=3)
+    report.paragraph(
+        f"The {side} x {side}-pixel square (top left at row {corner[0]}, column {corner[1]}) "
+        f"where *{coarsest.label}*, the setting with the largest sampling error, differs "
+        f"most from its converged render; each pixel enlarged {factor} times.")
+    items = [(report.crop("crop_reference.png", reference.image, corner, side, factor),
+              "path reference"),
+             (report.crop("crop_converged.png", converged[coarsest.label].image, corner, side,
+                          factor), f"Whitted converged ({coarsest.label}'s model)")]
+    items += [(report.crop(f"crop_{slug(p.label)}.png", p.image, corner, side, factor),
+               p.label) for p in whitted]
+    for start in range(0, len(items), 4):
+        report.figures(items[start:start + 4])
+
+
+def _missing_light(report, reference, sweep, results):
+    point = _first_whitted(sweep)
     report.heading("What Whitted leaves out")
     link = report.heatmap("missing_light.png", missing_light(point.image, reference.image),
                           "luminance missing", cmap="viridis")

@@ -1,62 +1,57 @@
-"""Speed against error: each integrator setting timed warm, its error
-measured against a reference.
+"""Speed against error: Whitted's settings and path's ladders, timed in
+interleaved rounds, each image's error measured against a reference.
 
 Every setting is rendered once to compile its kernels (that time is kept
 as ``first_seconds``) and once more untimed (Whitted's frozen kernels are
-recorded a second time then), then ``repeats`` more times; the median of
-those is its time. ``dr.sync_thread()`` runs before each clock stops, so
-the time covers the work and not just its launch.
+recorded a second time then). Then come the rounds: in each, every
+setting is timed once, Whitted's and path's settings taking turns, so
+that the machine's drift from one minute to the next falls on all of
+them alike, in an order shuffled anew in every round.
+``dr.sync_thread()`` runs before each clock stops, so a time covers the
+work and not just its launch. Each setting renders the same image every
+time (Whitted is deterministic, path keeps its seed), so one image per
+setting is measured.
+
+Path's curve is rendered with two samplers, ``independent`` and
+``multijitter`` (stratified, so its error falls faster on smooth
+integrands): the fair peer at an error is whichever is faster there
+(:mod:`.equal_error`).
 """
 
 from __future__ import annotations
 
+import json
 import math
-import statistics
+from contextlib import contextmanager
 from dataclasses import dataclass, field
+from itertools import zip_longest
 
 import mitsuba as mi
 import numpy as np
 
-from ..jit import timed
-from .metrics import flip_error, rel_mse, rmse
+from ..jit import release_scenes, timed
+from ..overrides import load_with
+from .intervals import SEED, Draws, tile_pixels, tile_sums
+from .metrics import TILE_SIDES, error_maps, rmse
 from .reference import Reference, path_settings, rgb
 
+#: Path's samplers, each rendering a ladder of its own.
+PATH_SAMPLERS = ("independent", "multijitter")
 
-@dataclass
-class SweepPoint:
+
+@dataclass(frozen=True)
+class Setting:
+    """One render of a sweep: an integrator for ``mi.load_dict``, and for
+    path the sampler of its sensor, its samples per pixel and its seed
+    (Whitted places its own samples). ``kind`` is "path" for path's
+    ladders and "whitted" for what is measured against them."""
+
     label: str
-    kind: str             # "whitted" or "path"
-    settings: dict
-    spp: int | None       # path only
-    seconds: float        # median of the warm renders
-    first_seconds: float  # the first (compiling) render
-    image: np.ndarray = field(repr=False)
-    rel_mse: float = math.nan
-    rmse: float = math.nan
-    flip: float = math.nan
-
-
-#: A render that takes longer than this is timed warm once instead of
-#: ``repeats`` times: its run-to-run noise is small next to its length.
-LONG_RENDER_S = 5.0
-
-
-def timed_render(scene: mi.Scene, integrator, repeats: int = 3, **render_args):
-    """(image, first render's seconds, median of ``repeats`` warm renders,
-    or of one where the first took longer than :data:`LONG_RENDER_S`)."""
-    def render():
-        return mi.render(scene, integrator=integrator, **render_args)
-
-    image, (first,) = timed(render, 1)
-    if first > LONG_RENDER_S:
-        _, warm = timed(render, 1)
-    else:
-        # The second render of a Whitted setting records its frozen kernels
-        # once more, many times a warm render's time; with it among three
-        # timed renders, one more stall would make the median.
-        timed(render, 1)
-        _, warm = timed(render, repeats)
-    return rgb(image), first, statistics.median(warm)
+    kind: str
+    integrator: dict
+    spp: int = 0
+    sampler: str | None = None
+    seed: int = 0
 
 
 def scene_whitted_settings(scene: mi.Scene) -> dict:
@@ -73,35 +68,48 @@ def scene_whitted_settings(scene: mi.Scene) -> dict:
 CONTRAST_AA = {"aa": "contrast", "aa_threshold": 0.02, "aa_budget": 256}
 
 
-def whitted_variants(base: dict, quick: bool = False) -> dict:
-    """Labelled Whitted settings around ``base``: its AA modes, adaptive
-    thresholds, contrast refinement and depths, and the physical model when
-    ``base`` differs."""
+def _variants(base: dict) -> list[tuple[str, dict, bool]]:
+    """Every labelled change of ``base`` that a sweep measures, and whether
+    ``--quick`` keeps it; a new Whitted setting is added here."""
     # Three adaptive levels resolve edges to 1/16 pixel; deeper levels on a
     # low threshold would mostly spend the sample budget on noise.
     depth = min(base.get("aa_max_depth", 3), 3)
-    variants = {"aa none": {"aa": "none"},
-                "aa grid 2x2": {"aa": "grid", "aa_samples": 2},
-                "aa adaptive 0.25": {"aa": "adaptive", "aa_threshold": 0.25,
-                                     "aa_max_depth": depth}}
-    if not quick:
-        variants.update({
-            "aa grid 4x4": {"aa": "grid", "aa_samples": 4},
-            "aa adaptive 0.05": {"aa": "adaptive", "aa_threshold": 0.05, "aa_max_depth": depth},
-            "aa contrast 8x8": {**CONTRAST_AA, "aa_samples": 8},
-            "max_depth 2": {"aa": "none", "max_depth": 2},
-            "max_depth 4": {"aa": "none", "max_depth": 4},
-        })
-        if base.get("shadows", "physical") != "physical" or _has_ambient(base):
-            variants["physical, aa none"] = {"aa": "none", "shadows": "physical",
-                                             "ambient": {"type": "rgb", "value": [0, 0, 0]}}
-    if base and not quick:
-        variants = {"as in the scene": {}, **variants}
-    return {label: {**base, **change} for label, change in variants.items()}
+    variants = [
+        ("as in the scene", {}, False),
+        ("aa none", {"aa": "none"}, True),
+        ("aa grid 2x2", {"aa": "grid", "aa_samples": 2}, True),
+        ("aa adaptive 0.25", {"aa": "adaptive", "aa_threshold": 0.25, "aa_max_depth": depth},
+         True),
+        ("aa grid 4x4", {"aa": "grid", "aa_samples": 4}, False),
+        ("aa adaptive 0.05", {"aa": "adaptive", "aa_threshold": 0.05, "aa_max_depth": depth},
+         False),
+        ("aa contrast 8x8", {**CONTRAST_AA, "aa_samples": 8}, False),
+        ("max_depth 2", {"aa": "none", "max_depth": 2}, False),
+        ("max_depth 4", {"aa": "none", "max_depth": 4}, False),
+    ]
+    if base.get("shadows", "physical") != "physical" or _has_ambient(base):
+        variants.append(("physical, aa none", {"aa": "none", "shadows": "physical",
+                                               "ambient": {"type": "rgb", "value": [0, 0, 0]}},
+                         False))
+    return variants if base else variants[1:]
+
+
+def whitted_variants(base: dict, quick: bool = False) -> dict:
+    """Labelled Whitted settings around ``base``: its AA modes, adaptive
+    thresholds, contrast refinement and depths, the physical model when
+    ``base`` differs, and ``base`` itself when the scene has one."""
+    return {label: {**base, **change} for label, change, in_quick in _variants(base)
+            if in_quick or not quick}
 
 
 def _has_ambient(settings: dict) -> bool:
     return any(settings.get("ambient", {}).get("value", [0]))
+
+
+def whitted_settings(variants: dict) -> list[Setting]:
+    """A sweep's settings for labelled Whitted settings (as ``whitted_variants``)."""
+    return [Setting(label, "whitted", {"type": "whitted", **settings})
+            for label, settings in variants.items()]
 
 
 def path_spp_ladder(largest: int) -> list[int]:
@@ -109,94 +117,194 @@ def path_spp_ladder(largest: int) -> list[int]:
     return [1 << k for k in range(int(math.log2(max(largest, 1))) + 1)]
 
 
-def measure(point: SweepPoint, reference: Reference) -> SweepPoint:
-    point.rel_mse = rel_mse(point.image, reference.image)
-    point.rmse = rmse(point.image, reference.image)
-    point.flip, _ = flip_error(point.image, reference.image)
+def path_ladder(largest: int, samplers=PATH_SAMPLERS, depth: int | None = None) -> list[Setting]:
+    """Path at 1, 2, 4, ... up to ``largest`` spp with each sampler, or as
+    near as the sampler takes (``multijitter`` rounds some counts up)."""
+    integrator = path_settings(depth) if depth else path_settings()
+    return [Setting(f"path {sampler} {spp} spp", "path", integrator, spp, sampler, seed=spp)
+            for sampler in samplers
+            for spp in sorted(set(sample_counts(sampler, path_spp_ladder(largest))))]
+
+
+def sampler_sensors(scene_path, defines: dict, samplers=PATH_SAMPLERS) -> dict:
+    """The scene file's sensor with each of ``samplers``, by sampler: each
+    taken from a copy of the scene, which is let go (kept, its objects
+    would slow every frozen call, which traverses every live instance)."""
+    return {sampler: load_with(scene_path, defines, {"sampler": sampler}).sensors()[0]
+            for sampler in samplers}
+
+
+def sample_counts(sampler: str, requested: list[int]) -> list[int]:
+    """The samples per pixel Mitsuba's ``sampler`` takes for each count of
+    ``requested`` (asked with its warning about a rounded count quieted:
+    the ladder renders the rounded count, which it does not warn about)."""
+    with _log_level(mi.LogLevel.Error):
+        return [mi.load_dict({"type": sampler, "sample_count": count}).sample_count()
+                for count in requested]
+
+
+@contextmanager
+def _log_level(level):
+    logger = mi.logger()
+    before = logger.log_level()
+    logger.set_log_level(level)
+    try:
+        yield
+    finally:
+        logger.set_log_level(before)
+
+
+@dataclass
+class SweepPoint:
+    """A setting's renders: the first one's time, one time per round, and
+    the image with its errors. ``tiles``: each metric's per-pixel error
+    summed over the tiles of :func:`.intervals.tile_sums`."""
+
+    setting: Setting
+    first_seconds: float
+    times: np.ndarray
+    image: np.ndarray = field(repr=False)
+    rel_mse: float = math.nan
+    rmse: float = math.nan
+    flip: float = math.nan
+    tiles: dict = field(default_factory=dict, repr=False)
+
+    @property
+    def label(self) -> str:
+        return self.setting.label
+
+    @property
+    def kind(self) -> str:
+        return self.setting.kind
+
+    @property
+    def spp(self) -> int:
+        return self.setting.spp
+
+    def error(self, metric: str) -> float:
+        return {"relmse": self.rel_mse, "flip": self.flip}[metric]
+
+
+@dataclass
+class Sweep:
+    """Every point of a sweep, timed in the same rounds, the size of their
+    images, and the draws of their bootstrap."""
+
+    points: list[SweepPoint]
+    size: tuple
+    draws: Draws
+
+    @property
+    def metrics(self) -> list[str]:
+        """The metrics every image was measured in."""
+        return [m for m in self.points[0].tiles if all(m in p.tiles for p in self.points)]
+
+    def of_kind(self, kind: str) -> list[SweepPoint]:
+        return [p for p in self.points if p.kind == kind]
+
+    def tile_pixels(self, metric: str) -> np.ndarray:
+        """The pixels of each of ``metric``'s tiles."""
+        return tile_pixels(*self.size, TILE_SIDES[metric])
+
+    @property
+    def times(self) -> np.ndarray:
+        """Every point's time in every round (rounds x points)."""
+        return np.stack([p.times for p in self.points], axis=1)
+
+    def path_curves(self) -> list[tuple[str, list[int], np.ndarray]]:
+        """Path's curves: each sampler, the indices of its points in spp
+        order, and their spp."""
+        curves = []
+        for sampler in dict.fromkeys(p.setting.sampler for p in self.of_kind("path")):
+            columns = sorted((i for i, p in enumerate(self.points)
+                              if p.kind == "path" and p.setting.sampler == sampler),
+                             key=lambda i: self.points[i].spp)
+            curves.append((sampler, columns,
+                           np.array([self.points[i].spp for i in columns], dtype=float)))
+        return curves
+
+
+def measure(point: SweepPoint, reference: np.ndarray) -> SweepPoint:
+    """The point's errors against ``reference``, and their tile sums."""
+    maps = error_maps(point.image, reference)
+    point.rel_mse = float(np.mean(maps["relmse"]))
+    point.flip = float(np.mean(maps["flip"])) if "flip" in maps else math.nan
+    point.rmse = rmse(point.image, reference)
+    point.tiles = {metric: tile_sums(values, TILE_SIDES[metric])
+                   for metric, values in maps.items()}
     return point
 
 
-def run_sweep(scene: mi.Scene, reference: Reference, whitted: dict, path_spp: list[int],
-              repeats: int = 3, path_depth: int | None = None, progress=None) -> list[SweepPoint]:
-    """Time and measure each labelled Whitted setting and ``path`` at each
-    spp of ``path_spp``."""
-    total = len(whitted) + len(path_spp)
-    points = []
-    for label, settings in whitted.items():
-        integrator = mi.load_dict({"type": "whitted", **settings})
-        image, first, seconds = timed_render(scene, integrator, repeats)
-        points.append(measure(SweepPoint(label, "whitted", settings, None, seconds, first, image),
-                              reference))
-        _report(progress, len(points), total, label)
-    settings = path_settings(path_depth) if path_depth else path_settings()
-    integrator = mi.load_dict(settings)
-    for spp in path_spp:
-        image, first, seconds = timed_render(scene, integrator, repeats, spp=spp, seed=spp)
-        points.append(measure(SweepPoint(f"path {spp} spp", "path", settings, spp, seconds,
-                                         first, image), reference))
-        _report(progress, len(points), total, f"path {spp} spp")
-    return points
+def run_sweep(scene: mi.Scene, reference: Reference, settings: list[Setting], sensors: dict,
+              rounds: int, progress=None) -> Sweep:
+    """Render, time and measure ``settings``: path's with the sensor of
+    ``sensors`` that has their sampler, in ``rounds`` interleaved rounds."""
+    # A scene an earlier comparison left to the collector would make every
+    # render timed here dearer.
+    release_scenes()
+    integrators = {}
+    renders = [_render_function(scene, setting, sensors, integrators) for setting in settings]
+    steps = len(settings) + rounds
+    first = []
+    for setting, render in zip(settings, renders):
+        image, (seconds,) = timed(render, 1)
+        first.append((rgb(image), seconds))
+        _report(progress, len(first), steps, setting.label)
+    # Once every sampler has rendered: a path render with a sensor of its
+    # own makes Whitted's frozen kernels record again at their next call.
+    for render in renders:
+        timed(render, 1)
+    times = timed_rounds(renders, [s.kind for s in settings], rounds,
+                         lambda done: _report(progress, len(settings) + done, steps,
+                                              f"round {done} of {rounds}"))
+    points = [measure(SweepPoint(setting, seconds, times[:, index], image), reference.image)
+              for index, (setting, (image, seconds)) in enumerate(zip(settings, first))]
+    return Sweep(points, reference.image.shape[:2], Draws.make(rounds))
+
+
+def _render_function(scene: mi.Scene, setting: Setting, sensors: dict, integrators: dict):
+    """``setting``'s render; settings with the same integrator share one
+    (``integrators``, by its settings as text), as path's rungs do."""
+    key = json.dumps(setting.integrator, sort_keys=True, default=str)
+    if key not in integrators:
+        integrators[key] = mi.load_dict(setting.integrator)
+    integrator = integrators[key]
+    sensor = sensors[setting.sampler] if setting.sampler else 0
+
+    def render():
+        return mi.render(scene, integrator=integrator, sensor=sensor, spp=setting.spp,
+                         seed=setting.seed)
+
+    return render
+
+
+def timed_rounds(renders: list, kinds: list[str], rounds: int, done=None) -> np.ndarray:
+    """The time of each of ``renders`` (rounds x renders) in ``rounds``
+    rounds, each timing every render once in the order of
+    :func:`round_order`; ``done(round)`` after each."""
+    times = np.empty((rounds, len(renders)))
+    for round_index in range(rounds):
+        for index in round_order(kinds, round_index):
+            times[round_index, index] = timed(renders[index], 1)[1][0]
+        if done is not None:
+            done(round_index + 1)
+    return times
+
+
+def round_order(kinds: list[str], round_index: int) -> list[int]:
+    """The order of round ``round_index``: Whitted's settings and path's
+    taking turns (those of the longer list left over at the end), each
+    list shuffled anew in every round (from a fixed seed), so that no
+    setting always follows the same one: what a render leaves behind
+    (memory to allocate again, caches to fill) falls on each setting in
+    some rounds and not in others, instead of always on the same one."""
+    generator = np.random.default_rng([SEED, round_index])
+    whitted = generator.permutation([i for i, kind in enumerate(kinds) if kind != "path"])
+    path = generator.permutation([i for i, kind in enumerate(kinds) if kind == "path"])
+    return [int(i) for pair in zip_longest(whitted, path) for i in pair if i is not None]
 
 
 def _report(progress, done, total, what):
     if progress is not None:
         progress(done, total, what)
 
-
-@dataclass
-class EqualError:
-    """Time ``path`` needs to reach an error: exact (``relation`` "="),
-    or a bound when the error lies outside the measured spp range."""
-    seconds: float
-    spp: float
-    relation: str  # "=", "<" (path at 1 spp is already better), ">" (not reached)
-
-
-def equal_error(path_points: list[SweepPoint], error: float) -> EqualError:
-    """Interpolate the path curve (log time and log spp against log relMSE)
-    at ``error``."""
-    points = sorted(path_points, key=lambda p: p.spp)
-    if error >= points[0].rel_mse:
-        return EqualError(points[0].seconds, points[0].spp, "<")
-    for low, high in zip(points, points[1:]):
-        if high.rel_mse <= error:
-            share = (math.log(low.rel_mse / error) / math.log(low.rel_mse / high.rel_mse)
-                     if low.rel_mse > high.rel_mse else 1.0)
-            return EqualError(_log_lerp(low.seconds, high.seconds, share),
-                              _log_lerp(low.spp, high.spp, share), "=")
-    return EqualError(points[-1].seconds, points[-1].spp, ">")
-
-
-def _log_lerp(a: float, b: float, share: float) -> float:
-    return math.exp(math.log(a) + share * (math.log(b) - math.log(a)))
-
-
-@dataclass
-class Speedup:
-    point: SweepPoint
-    path: EqualError
-
-    @property
-    def factor(self) -> float:
-        """Path's time at Whitted's error over Whitted's time."""
-        return self.path.seconds / self.point.seconds
-
-
-#: How an equal-error figure is written: exact, or a bound.
-RELATION_PREFIX = {"=": "", "<": "< ", ">": "> "}
-
-
-def speedup_text(factor: float, relation: str) -> str:
-    """A speed-up factor, with ``<``/``>`` when it is a bound."""
-    return f"{RELATION_PREFIX[relation]}{factor:.3g}x"
-
-
-def speedups(points: list[SweepPoint]) -> list[Speedup]:
-    path_points = [p for p in points if p.kind == "path"]
-    return [Speedup(p, equal_error(path_points, p.rel_mse)) for p in points if p.kind == "whitted"]
-
-
-def crossing(points: list[SweepPoint]) -> Speedup:
-    """Where the path curve reaches the most accurate Whitted setting:
-    beyond that time, path is more accurate than every Whitted setting."""
-    return min(speedups(points), key=lambda s: s.point.rel_mse)

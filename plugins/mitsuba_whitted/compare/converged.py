@@ -1,0 +1,94 @@
+"""Whitted's error in two parts: the sampling error, a setting's image
+against a render of the same model whose anti-aliasing has converged, and
+the model's bias, that converged render against path's reference.
+
+The converged render samples every pixel on a dense grid of side
+:data:`CONVERGED_SIDE`. Unlike adaptive or contrast refinement, a grid
+cannot miss detail that the pixel centres do not show (a thin line, a
+checkerboard minified in a glass ball's rim); its error at an edge is at
+most 1/n of the pixel's coverage; and its n x n camera samples each cast
+their own shadow rays towards area lights, so their average converges
+too. Every setting that differs only in its anti-aliasing shares one
+converged render. Renders are cached like the references, under a key of
+the scene, the model's settings and the package's code.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from .cache import ReferenceCache, cache_key, package_digest
+from .metrics import error_maps
+from .reference import rgb
+
+#: The settings that choose the anti-aliasing, which a converged render
+#: replaces.
+AA_KEYS = ("aa", "aa_samples", "aa_threshold", "aa_max_depth", "aa_budget")
+#: Side of the converged render's grid of samples in each pixel, and the
+#: side ``--quick`` takes.
+CONVERGED_SIDE, QUICK_SIDE = 32, 16
+
+
+def model_settings(settings: dict) -> dict:
+    """A Whitted setting without its anti-aliasing: what its image
+    converges to as the anti-aliasing samples more."""
+    return {name: value for name, value in settings.items() if name not in AA_KEYS}
+
+
+def converged_settings(settings: dict, side: int = CONVERGED_SIDE) -> dict:
+    """``settings``'s model with a ``side`` x ``side`` grid in every pixel."""
+    return {**model_settings(settings), "aa": "grid", "aa_samples": side,
+            "aa_budget": side * side}
+
+
+@dataclass
+class Converged:
+    """A converged render: its settings, image, render time (when it was
+    made) and whether it came from the cache."""
+
+    settings: dict
+    image: np.ndarray
+    seconds: float
+    cached: bool
+
+
+def converged_renders(scene: mi.Scene, scene_digest: str, whitted: dict,
+                      cache: ReferenceCache, side: int = CONVERGED_SIDE) -> dict:
+    """The converged render of each labelled Whitted setting of
+    ``whitted`` (settings dictionaries without ``type``), by label, one
+    render for each distinct model; ``scene_digest`` names the scene in
+    the cache."""
+    renders, by_label = {}, {}
+    for label, settings in whitted.items():
+        target = converged_settings(settings, side)
+        model = json.dumps(target, sort_keys=True, default=str)
+        if model not in renders:
+            renders[model] = _cached_render(scene, scene_digest, target, cache)
+        by_label[label] = renders[model]
+    return by_label
+
+
+def _cached_render(scene, scene_digest: str, settings: dict, cache: ReferenceCache) -> Converged:
+    def compute():
+        started = time.perf_counter()
+        image = rgb(mi.render(scene, integrator=mi.load_dict({"type": "whitted", **settings})))
+        dr.sync_thread()
+        return {"image": image, "seconds": np.array(time.perf_counter() - started)}
+
+    key = cache_key(kind="converged whitted", scene=scene_digest, integrator=settings,
+                    code=package_digest())
+    hits = cache.hits
+    arrays = cache.get_or_compute(key, compute)
+    return Converged(settings, arrays["image"], float(arrays["seconds"]), cache.hits > hits)
+
+
+def mean_errors(image: np.ndarray, reference: np.ndarray) -> dict:
+    """Each metric's error of ``image`` against ``reference``."""
+    return {metric: float(np.mean(values))
+            for metric, values in error_maps(image, reference).items()}
