@@ -17,6 +17,9 @@ from mitsuba_whitted.compare import (ReferenceCache, cache_key, cached_reference
                                      luminance, missing_energy_share, noise_rel_mse, rel_mse,
                                      rmse, scene_digest)
 from mitsuba_whitted.compare.converged import converged_renders
+from mitsuba_whitted.compare.levels import error_levels
+from mitsuba_whitted.compare.reference import render_reference
+from mitsuba_whitted.compare.sweep import indirect_change
 from mitsuba_whitted.compare.report import number
 from mitsuba_whitted.imageio import read_image
 
@@ -147,6 +150,26 @@ def test_converged_renders_are_shared_by_a_model_and_cached(tmp_path):
             < rel_mse(centres[..., :3], finer["none"].image) / 5)
 
 
+def test_indirect_light_on_paths_model_converges_to_the_reference(tmp_path):
+    """Settings whose expectation is path's image share the reference as
+    their converged render; with an ambient term, another depth or tinted
+    shadows the model differs from path's and is rendered."""
+    scene = mi.load_dict(glass_scene(size=16))
+    reference = render_reference(scene, 16, passes=2)
+    cache = ReferenceCache(tmp_path)
+    path_model = indirect_change(4, {"aa": "none"})
+    whitted = {"ladder 4": path_model, "ladder 16": {**path_model, "indirect_samples": 16},
+               "ambient": {**path_model, "ambient": {"type": "rgb", "value": [0.1, 0.1, 0.1]}},
+               "shallow": {**path_model, "max_depth": 3},
+               "tinted": {**path_model, "shadows": "tinted"}}
+    converged = converged_renders(scene, "scene", whitted, cache, side=2, reference=reference)
+    assert converged["ladder 4"] is converged["ladder 16"]
+    assert converged["ladder 4"].image is reference.image
+    for label in ("ambient", "shallow", "tinted"):
+        assert converged[label].image is not reference.image, label
+    assert cache.misses == 3
+
+
 # -------------------------------------------------------- compare --quick
 
 def test_compare_quick_writes_a_consistent_report(tmp_path):
@@ -167,7 +190,8 @@ def test_compare_quick_writes_a_consistent_report(tmp_path):
     assert read_image(images / "crop_aa_none.png").shape == (192, 192, 3)
     assert_finite(reference)
     whitted = results["whitted"]
-    assert set(whitted) == {"aa none", "aa grid 2x2", "aa adaptive 0.25"}
+    assert set(whitted) == {"aa none", "aa grid 2x2", "aa adaptive 0.25",
+                            "indirect 4, grid 2x2", "indirect 16, grid 2x2"}
     assert set(results["path"]) == {"independent", "multijitter"}
     for rungs in results["path"].values():
         assert [rung["spp"] for rung in rungs] == [1, 2, 4, 8, 16]
@@ -186,12 +210,24 @@ def test_compare_quick_writes_a_consistent_report(tmp_path):
             assert point["verdict"][metric] in row
             there = point["path_at_equal_error"][metric]["seconds"]["median"]
             assert speedup["median"] == pytest.approx(there / point["seconds"]["median"])
-            # A setting's sampling error is against its own converged
-            # render, which shares the model's bias.
-            assert point["sampling_error"][metric] < point["model_bias"][metric]
+            if point["settings"].get("indirect_samples"):
+                # Path's model: it converges to the reference itself.
+                assert point["model_bias"][metric] == 0
+                assert point["sampling_error"][metric] == pytest.approx(
+                    point["rel_mse"] if metric == "relmse" else point["flip"])
+            else:
+                # A setting's sampling error is against its own converged
+                # render, which shares the model's bias.
+                assert point["sampling_error"][metric] < point["model_bias"][metric]
         assert point["seconds"]["low"] <= point["seconds"]["median"] <= point["seconds"]["high"]
     # Path error falls with the sample count (about as 1/spp).
     assert path[-1]["rel_mse"] < path[0]["rel_mse"] / 4
+    levels = results["levels"]
+    noise = results["reference"]["noise_rel_mse"]
+    assert [entry["error"] for entry in levels["entries"]] == pytest.approx(error_levels(noise))
+    for entry in levels["entries"]:
+        assert f"| {number(entry['error'])} | " in report
+        assert entry["goal"] in ("met", "missed", "undecided", "not measured")
     share = results["missing_energy_share"]
     assert 0 < share < 1 and f"{100 * share:.1f}%" in report
 

@@ -15,15 +15,21 @@ from validation.scenes import SPEED
 
 
 def _speedups(comparison) -> dict:
-    """Every Whitted setting's speed-up in every metric, by (label, metric)."""
-    return {(label, metric): Estimate.from_json(entry["speedup"][metric])
-            for label, entry in comparison.results["whitted"].items()
-            for metric in comparison.results["metrics"]}
+    """Every Whitted setting's speed-up in every metric, by (label, metric),
+    and the family's at every error level, by level."""
+    speedups = {(label, metric): Estimate.from_json(entry["speedup"][metric])
+                for label, entry in comparison.results["whitted"].items()
+                for metric in comparison.results["metrics"]}
+    speedups.update({("level", entry["error"]): Estimate.from_json(entry["speedup"])
+                     for entry in comparison.results["levels"]["entries"]
+                     if entry["speedup"] is not None})
+    return speedups
 
 
 def test_two_runs_of_the_speed_section_agree(tmp_path):
     """The report's speed section twice on its own scenes, small: each
-    interval of the second run overlaps the first's."""
+    interval of the second run overlaps the first's, the family's speed-up
+    at each error level too."""
     cache = ReferenceCache(tmp_path / "cache")
     runs = [speed_section(MarkdownReport(tmp_path / f"run{index}", "speed"), cache, None,
                           SpeedSettings.quick())

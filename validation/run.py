@@ -24,7 +24,9 @@ from mitsuba_whitted.compare import (PATH_SAMPLERS, CompareOptions, ReferenceCac
                                      run_sweep, scene_whitted_settings, whitted_batches)
 from mitsuba_whitted.compare.equal_error import time_estimates
 from mitsuba_whitted.compare.report import MarkdownReport, number
-from mitsuba_whitted.compare.scene_report import (speedup_sentence, split_sentence,
+from mitsuba_whitted.compare.intervals import Estimate, verdict_text
+from mitsuba_whitted.compare.scene_report import (levels_sentence, levels_table,
+                                                  speedup_sentence, split_sentence,
                                                   timing_sentence, verdict_sentences,
                                                   whitted_table)
 from mitsuba_whitted.files import replaced_folder
@@ -224,8 +226,24 @@ def speed_section(report: MarkdownReport, cache: ReferenceCache, backend,
         whitted_table(report, result.results)
         for sentence in verdict_sentences(result.results):
             report.paragraph(sentence)
+        levels_table(report, result.results)
         comparisons.append(result)
+    goal_table(report, comparisons)
     return comparisons
+
+
+def goal_table(report: MarkdownReport, comparisons: list) -> None:
+    """Each scene's speed-ups over the error levels, side by side."""
+    report.heading("3.0 The goal, scene by scene", level=3)
+    report.paragraph(levels_sentence())
+    rows = []
+    for result in comparisons:
+        summary = result.results["levels"]["summary"]
+        least = summary["least_speedup"]
+        rows.append([result.results["scene"], summary["levels"], summary["faster"],
+                     summary["met"], "-" if least is None
+                     else verdict_text(Estimate.from_json(least))])
+    report.table(["scene", "levels", "faster at", "goal met at", "least speed-up"], rows)
 
 
 # -------------------------------------------------------------------- stability

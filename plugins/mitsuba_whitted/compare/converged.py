@@ -9,7 +9,10 @@ checkerboard minified in a glass ball's rim); its error at an edge is at
 most 1/n of the pixel's coverage; and its n x n camera samples each cast
 their own shadow rays towards area lights, so their average converges
 too. Every setting that differs only in its anti-aliasing shares one
-converged render. Renders are cached like the references, under a key of
+converged render. A setting with indirect light whose model is path's
+(``indirect_samples`` above 0, physical shadows, no ambient term, path's
+``max_depth``) converges to path's image, as the equivalence tests show:
+its converged render is the reference itself, and its model bias 0. Renders are cached like the references, under a key of
 the scene, the model's settings and the package's code.
 """
 
@@ -25,7 +28,7 @@ import numpy as np
 
 from .cache import ReferenceCache, cache_key, package_digest
 from .metrics import error_maps
-from .reference import rgb
+from .reference import PATH_DEPTH, Reference, path_settings, rgb
 
 #: The settings that choose the anti-aliasing, which a converged render
 #: replaces.
@@ -47,6 +50,19 @@ def converged_settings(settings: dict, side: int = CONVERGED_SIDE) -> dict:
             "aa_budget": side * side}
 
 
+def converges_to_path(settings: dict) -> bool:
+    """Whether Whitted with ``settings`` has path's expectation: indirect
+    light gathered, physical shadows, no ambient term, path's depth."""
+    return (settings.get("indirect_samples", 0) > 0
+            and settings.get("shadows", "physical") == "physical"
+            and not has_ambient(settings) and settings.get("max_depth", 10) == PATH_DEPTH)
+
+
+def has_ambient(settings: dict) -> bool:
+    """Whether Whitted's ``settings`` add an ambient term."""
+    return any(settings.get("ambient", {}).get("value", [0]))
+
+
 @dataclass
 class Converged:
     """A converged render: its settings, image, render time (when it was
@@ -59,17 +75,22 @@ class Converged:
 
 
 def converged_renders(scene: mi.Scene, scene_digest: str, whitted: dict,
-                      cache: ReferenceCache, side: int = CONVERGED_SIDE) -> dict:
+                      cache: ReferenceCache, side: int = CONVERGED_SIDE,
+                      reference: Reference | None = None) -> dict:
     """The converged render of each labelled Whitted setting of
     ``whitted`` (settings dictionaries without ``type``), by label, one
     render for each distinct model; ``scene_digest`` names the scene in
-    the cache."""
+    the cache. Settings that converge to path's image share ``reference``
+    where it is given."""
     renders, by_label = {}, {}
     for label, settings in whitted.items():
-        target = converged_settings(settings, side)
+        path_model = reference is not None and converges_to_path(settings)
+        target = path_settings() if path_model else converged_settings(settings, side)
         model = json.dumps(target, sort_keys=True, default=str)
         if model not in renders:
-            renders[model] = _cached_render(scene, scene_digest, target, cache)
+            renders[model] = (Converged(target, reference.image, reference.seconds,
+                                        reference.cached) if path_model
+                              else _cached_render(scene, scene_digest, target, cache))
         by_label[label] = renders[model]
     return by_label
 

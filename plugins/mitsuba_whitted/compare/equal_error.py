@@ -64,10 +64,12 @@ def _interpolated(error_a, error_b, target, *pairs):
     """Each of ``pairs`` ((a, b) arrays) interpolated in log-log against
     the error, from ``error_a`` at a to ``error_b`` at b, at ``target``;
     b itself where the curve does not fall between the two rungs."""
-    with np.errstate(divide="ignore", invalid="ignore"):
+    # Targets beyond the rungs give shares far from [0, 1], whose values
+    # overflow and which the caller replaces with bounds.
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         share = np.where(error_a > error_b,
                          np.log(error_a / target) / np.log(error_a / error_b), 1.0)
-    return [np.exp(np.log(a) + share * (np.log(b) - np.log(a))) for a, b in pairs]
+        return [np.exp(np.log(a) + share * (np.log(b) - np.log(a))) for a, b in pairs]
 
 
 def envelope(reaches: list[Reach]) -> Reach:
@@ -133,13 +135,11 @@ def analyse(sweep: Sweep) -> Analysis:
     """Times and equal-error speed-ups, from one bootstrap over the sweep's
     rounds and tiles (the first row of each array is the estimate from all
     of them)."""
-    times = _replicated_times(sweep)
+    times = replicated_times(sweep)
     seconds = time_estimates(sweep, times)
     gains = {p.label: {} for p in sweep.of_kind("whitted")}
     for metric in sweep.metrics:
-        sums = np.array([p.tiles[metric] for p in sweep.points])
-        pixels = sweep.tile_pixels(metric)
-        errors = _with_estimate(sums.sum(axis=1) / pixels.sum(), sweep.draws.means(sums, pixels))
+        errors = replicated_errors(sweep, metric)
         for index, point in enumerate(sweep.points):
             if point.kind == "whitted":
                 gains[point.label][metric] = _gain(sweep, errors, times, index,
@@ -149,13 +149,23 @@ def analyse(sweep: Sweep) -> Analysis:
 
 def time_estimates(sweep: Sweep, times: np.ndarray | None = None) -> dict:
     """Each point's median time over the rounds with its interval, by
-    label (``times``: :func:`_replicated_times`, when already drawn)."""
-    times = _replicated_times(sweep) if times is None else times
+    label (``times``: :func:`replicated_times`, when already drawn)."""
+    times = replicated_times(sweep) if times is None else times
     return {p.label: spread(times[0, i], times[1:, i]) for i, p in enumerate(sweep.points)}
 
 
-def _replicated_times(sweep: Sweep) -> np.ndarray:
+def replicated_times(sweep: Sweep) -> np.ndarray:
+    """Every point's median time (replicates x points), the first row from
+    all the rounds, the others from the bootstrap's draws."""
     return _with_estimate(np.median(sweep.times, axis=0), sweep.draws.medians(sweep.times))
+
+
+def replicated_errors(sweep: Sweep, metric: str) -> np.ndarray:
+    """Every point's mean error in ``metric`` (replicates x points), the
+    first row from all the pixels, the others from the drawn tiles."""
+    sums = np.array([p.tiles[metric] for p in sweep.points])
+    pixels = sweep.tile_pixels(metric)
+    return _with_estimate(sums.sum(axis=1) / pixels.sum(), sweep.draws.means(sums, pixels))
 
 
 def _with_estimate(estimate: np.ndarray, replicates: np.ndarray) -> np.ndarray:
@@ -166,11 +176,17 @@ def _gain(sweep: Sweep, errors: np.ndarray, times: np.ndarray, index: int,
           own: Estimate) -> Gain:
     """Point ``index``'s gain: ``errors`` and ``times`` are replicates x
     points, ``own`` the point's time."""
-    curves = sweep.path_curves()
-    found = envelope([reach(errors[:, columns], times[:, columns], spp, errors[:, index], number)
-                      for number, (_, columns, spp) in enumerate(curves)])
+    found = path_reach(sweep, errors, times, errors[:, index])
     path = bounded(found.low[0], found.high[0], found.low[1:], found.high[1:])
     return Gain(quotient(path, own), path,
                 bounded(found.spp_low[0], found.spp_high[0], found.spp_low[1:],
                         found.spp_high[1:]),
-                curves[found.curve[0]][0])
+                sweep.path_curves()[found.curve[0]][0])
+
+
+def path_reach(sweep: Sweep, errors: np.ndarray, times: np.ndarray,
+               target: np.ndarray) -> Reach:
+    """Where the envelope of path's curves reaches ``target`` (one error
+    per replicate); ``errors`` and ``times`` are replicates x points."""
+    return envelope([reach(errors[:, columns], times[:, columns], spp, target, number)
+                     for number, (_, columns, spp) in enumerate(sweep.path_curves())])

@@ -24,6 +24,7 @@ from ..system import machine
 from .cache import ReferenceCache, cache_key
 from .converged import CONVERGED_SIDE, QUICK_SIDE, converged_renders, mean_errors
 from .equal_error import Analysis, Gain, analyse, gains_json
+from .levels import GOAL, LEVEL_METRIC, NOISE_MULTIPLE, TOP_LEVEL, analyse_levels, goal_summary
 from .intervals import (RELATION_PREFIX, REPLICATES, SEED, TAIL, Estimate, estimate_text,
                         verdict_text)
 from .metrics import (METRIC_NAMES, TILE_SIDES, missing_energy_share, missing_light, noise_rel_mse,
@@ -113,7 +114,8 @@ def compare_scene(scene_path: str | Path, out_dir: str | Path, options: CompareO
                       sampler_sensors(scene_path, defines or {}), options.rounds, progress)
     _finish(progress)
     analysis = analyse(sweep)
-    converged = converged_renders(scene, source.digest, variants, cache, options.converged_side)
+    converged = converged_renders(scene, source.digest, variants, cache, options.converged_side,
+                                  reference)
     results = _results(scene_path.name, reference, sweep, analysis, converged, options)
     results["film_filter"] = scene.sensors()[0].film().rfilter().class_name()
     report = _write_report(out_dir, scene_path, defines, reference, sweep, converged, results,
@@ -139,11 +141,13 @@ def _results(name: str, reference: Reference, sweep: Sweep, analysis: Analysis,
     renders = list({id(c): c for c in converged.values()}.values())
     biases = {id(c): mean_errors(c.image, reference.image) for c in renders}
     shown = {p.label for p in shown_rungs(sweep)}
+    noise = noise_rel_mse(reference.variance, reference.image)
+    levels = analyse_levels(sweep, noise)
     return {
         "scene": name,
         "reference": {"spp": reference.spp, "passes": REFERENCE_PASSES,
                       "seconds": reference.seconds, "cached": reference.cached,
-                      "noise_rel_mse": noise_rel_mse(reference.variance, reference.image),
+                      "noise_rel_mse": noise,
                       "size": list(reference.image.shape[:2])},
         "metrics": sweep.metrics,
         "timing": {"rounds": options.rounds, "replicates": REPLICATES, "seed": SEED,
@@ -159,6 +163,9 @@ def _results(name: str, reference: Reference, sweep: Sweep, analysis: Analysis,
                                            in shown), "spp": sweep.points[i].spp}
                            for i in columns]
                  for sampler, columns, _ in sweep.path_curves()},
+        "levels": {"metric": LEVEL_METRIC, "top": TOP_LEVEL, "noise_multiple": NOISE_MULTIPLE,
+                   "entries": [level.to_json() for level in levels],
+                   "summary": goal_summary(levels)},
         "crossing": {metric: _crossing_entry(*analysis.crossing(sweep, metric))
                      for metric in sweep.metrics},
         "missing_energy_share": missing_energy_share(_first_whitted(sweep).image,
@@ -277,6 +284,49 @@ def _error_tables(report, results):
                   for sampler, rungs in results["path"].items() for rung in rungs])
     for sentence in verdict_sentences(results):
         report.paragraph(sentence)
+    levels_table(report, results)
+
+
+def levels_sentence() -> str:
+    """What the table of levels shows."""
+    return (f"*Level by level*: at each relMSE from {TOP_LEVEL:g} down to {NOISE_MULTIPLE:g} "
+            "times the reference's own noise, the time `path` needs (the envelope of its "
+            "samplers' curves) against the time of the cheapest Whitted setting that reaches "
+            "it, the hybrid ladder read as a curve of its indirect paths per pixel. The "
+            f"goal is {GOAL:g}x: *met* where the speed-up's interval lies at or above it, "
+            "*missed* where it lies below, else *undecided*.")
+
+
+def levels_table(report: MarkdownReport, results: dict) -> None:
+    """The speed-up at each error level of ``results``, and its summary."""
+    levels = results["levels"]
+    summary = levels["summary"]
+    if not levels["entries"]:
+        report.paragraph(f"No error levels: the reference's own noise times "
+                         f"{NOISE_MULTIPLE:g} is above {TOP_LEVEL:g}.")
+        return
+    report.paragraph(levels_sentence())
+    report.table(["relMSE level", "path there", "Whitted family there", "speed-up",
+                  f"{GOAL:g}x goal"],
+                 [[number(entry["error"]), _path_cell(entry["path"]),
+                   _family_cell(entry["whitted"]),
+                   "-" if entry["speedup"] is None else
+                   verdict_text(Estimate.from_json(entry["speedup"])), entry["goal"]]
+                  for entry in levels["entries"]])
+    report.paragraph(f"The goal is met at {summary['met']} of {summary['levels']} levels; "
+                     f"the family is faster at {summary['faster']}.")
+
+
+def _path_cell(path: dict) -> str:
+    return (f"{_seconds(path['seconds'])} s, {number(path['spp']['median'], 2)} spp, "
+            f"{path['sampler']}")
+
+
+def _family_cell(whitted: dict) -> str:
+    if whitted["setting"] is None:
+        return f"not reached ({_seconds(whitted['seconds'])} s)"
+    paths = "" if whitted["paths"] is None else f", {number(whitted['paths'], 2)} paths"
+    return f"{_seconds(whitted['seconds'])} s, {whitted['setting']}{paths}"
 
 
 def whitted_table(report: MarkdownReport, results: dict) -> None:

@@ -33,7 +33,8 @@ from ..jit import release_scenes, timed
 from ..overrides import load_with
 from .intervals import SEED, Draws, tile_pixels, tile_sums
 from .metrics import TILE_SIDES, error_maps, rmse
-from .reference import Reference, path_settings, rgb
+from .converged import has_ambient
+from .reference import PATH_DEPTH, Reference, path_settings, rgb
 
 #: Path's samplers, each rendering a ladder of its own.
 PATH_SAMPLERS = ("independent", "multijitter")
@@ -87,23 +88,42 @@ def _variants(base: dict) -> list[tuple[str, dict, bool]]:
         ("max_depth 2", {"aa": "none", "max_depth": 2}, False),
         ("max_depth 4", {"aa": "none", "max_depth": 4}, False),
     ]
-    if base.get("shadows", "physical") != "physical" or _has_ambient(base):
-        variants.append(("physical, aa none", {"aa": "none", "shadows": "physical",
-                                               "ambient": {"type": "rgb", "value": [0, 0, 0]}},
-                         False))
+    if base.get("shadows", "physical") != "physical" or has_ambient(base):
+        variants.append(("physical, aa none", {"aa": "none", **PHYSICAL}, False))
+    variants += [(f"indirect {paths}, grid 2x2", indirect_change(paths, GRID_2X2),
+                  paths in QUICK_PATHS) for paths in INDIRECT_PATHS]
+    variants += [(f"indirect {side * side}, contrast {side}x{side}",
+                  indirect_change(side * side, {**CONTRAST_AA, "aa_samples": side}), False)
+                 for side in CONTRAST_SIDES]
     return variants if base else variants[1:]
+
+
+#: Whitted's model as path's: shadow rays pass only what does not bend
+#: light, no ambient term.
+PHYSICAL = {"shadows": "physical", "ambient": {"type": "rgb", "value": [0, 0, 0]}}
+GRID_2X2 = {"aa": "grid", "aa_samples": 2}
+#: The hybrid ladder's indirect paths per pixel, and those ``--quick`` keeps:
+#: a 2 x 2 grid shares them among its four camera samples.
+INDIRECT_PATHS, QUICK_PATHS = (4, 16, 64, 256), (4, 16)
+#: Sides of contrast refinement with as many indirect paths per pixel as an
+#: edge pixel's camera samples, one path each: finer edges where the image
+#: is also less noisy.
+CONTRAST_SIDES = (4, 8)
+
+
+def indirect_change(paths: int, anti_aliasing: dict) -> dict:
+    """Whitted on path's model (its expectation is path's image) with
+    ``paths`` indirect paths per pixel and ``anti_aliasing``."""
+    return {**anti_aliasing, **PHYSICAL, "max_depth": PATH_DEPTH, "indirect_samples": paths}
 
 
 def whitted_variants(base: dict, quick: bool = False) -> dict:
     """Labelled Whitted settings around ``base``: its AA modes, adaptive
     thresholds, contrast refinement and depths, the physical model when
-    ``base`` differs, and ``base`` itself when the scene has one."""
+    ``base`` differs, the hybrid ladder (indirect light on path's model)
+    and ``base`` itself when the scene has one."""
     return {label: {**base, **change} for label, change, in_quick in _variants(base)
             if in_quick or not quick}
-
-
-def _has_ambient(settings: dict) -> bool:
-    return any(settings.get("ambient", {}).get("value", [0]))
 
 
 def whitted_settings(variants: dict) -> list[Setting]:

@@ -1,0 +1,192 @@
+"""Speed at equal error, level by level: for each error from
+:data:`TOP_LEVEL` down to :data:`NOISE_MULTIPLE` times the reference's own
+noise, the time the Whitted family needs to reach it against the time
+``path`` needs.
+
+Whitted's family is every Whitted setting of a sweep. Settings that differ
+only in their indirect paths per pixel form a ladder, read like one of
+path's curves (interpolated in log-log between its rungs: a user may ask
+for any count); every other setting stands alone and reaches an error at
+its own time when its error is at most that. The family's time at a level
+is the least of these, the time of the cheapest way this package offers
+to render the scene at that error. Path's time is the envelope of its
+samplers' curves (:func:`.equal_error.path_reach`). Both come from the
+sweep's bootstrap, so each carries its interval, and the speed-up spans
+both (:func:`.intervals.quotient`).
+
+An error that no Whitted setting reaches within the sweep leaves the
+family's time open above, and the speed-up bounded above; one that path's
+largest rung does not reach leaves path's time open above, and the
+speed-up bounded below; where neither reaches it, nothing is measured.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .equal_error import envelope, path_reach, reach, replicated_errors, replicated_times
+from .intervals import Estimate, bounded, quotient, verdict
+from .sweep import Sweep
+
+#: The least accurate level, and the lowest as a multiple of the
+#: reference's own noise (an image's error against the reference holds
+#: that noise too, so levels near 1x would measure the reference).
+TOP_LEVEL, NOISE_MULTIPLE = 3e-2, 3.0
+#: Levels between the two, evenly spaced on a log scale.
+LEVELS_PER_DECADE = 2
+#: The speed-up the family aims for at every level.
+GOAL = 2.0
+#: The metric the levels are measured in.
+LEVEL_METRIC = "relmse"
+
+
+def error_levels(noise: float, top: float = TOP_LEVEL) -> list[float]:
+    """``top``, then lower by a factor of 10 every :data:`LEVELS_PER_DECADE`
+    steps, down to :data:`NOISE_MULTIPLE` times ``noise`` (the last
+    level); none where the reference is too noisy for ``top``."""
+    floor = NOISE_MULTIPLE * noise
+    if not floor < top:
+        return []
+    steps = math.ceil(LEVELS_PER_DECADE * math.log10(top / floor) - 1e-9)
+    return [top * 10 ** (-k / LEVELS_PER_DECADE) for k in range(steps)] + [floor]
+
+
+@dataclass
+class Level:
+    """One error level: path's time there (its spp, the sampler whose
+    curve gives it), the family's time (its setting, and the indirect
+    paths where a ladder gives it), and the speed-up (``None`` where
+    neither reaches the level)."""
+
+    error: float
+    path: Estimate
+    path_spp: Estimate
+    sampler: str
+    whitted: Estimate
+    setting: str | None
+    paths: float | None
+    speedup: Estimate | None
+
+    @property
+    def verdict(self) -> str:
+        return "not measured" if self.speedup is None else verdict(self.speedup)
+
+    @property
+    def goal(self) -> str:
+        """``met`` where the interval lies at or above :data:`GOAL`,
+        ``missed`` where it lies below, else ``undecided``."""
+        if self.speedup is None:
+            return "not measured"
+        if self.speedup.low >= GOAL:
+            return "met"
+        return "missed" if self.speedup.high < GOAL else "undecided"
+
+    def to_json(self) -> dict:
+        return {"error": self.error,
+                "path": {"seconds": self.path.to_json(), "spp": self.path_spp.to_json(),
+                         "sampler": self.sampler},
+                "whitted": {"seconds": self.whitted.to_json(), "setting": self.setting,
+                            "paths": self.paths},
+                "speedup": None if self.speedup is None else self.speedup.to_json(),
+                "verdict": self.verdict, "goal": self.goal}
+
+
+@dataclass(frozen=True)
+class FamilyCurve:
+    """Whitted settings read as one curve: a ladder's rungs in order of
+    their indirect paths, or one setting alone (``paths`` empty)."""
+
+    columns: list
+    paths: np.ndarray
+
+    @property
+    def ladder(self) -> bool:
+        return len(self.paths) > 0
+
+
+def family_curves(sweep: Sweep) -> list[FamilyCurve]:
+    """The Whitted family's curves: each ladder of settings that differ
+    only in ``indirect_samples``, and each other setting alone."""
+    ladders, alone = {}, []
+    for index, point in enumerate(sweep.points):
+        if point.kind != "whitted":
+            continue
+        settings = point.setting.integrator
+        paths = settings.get("indirect_samples", 0)
+        if paths > 0:
+            rest = {k: v for k, v in settings.items() if k != "indirect_samples"}
+            ladders.setdefault(json.dumps(rest, sort_keys=True, default=str),
+                               []).append((paths, index))
+        else:
+            alone.append(FamilyCurve([index], np.array([])))
+    return alone + [FamilyCurve([i for _, i in sorted(rungs)],
+                                np.array(sorted(p for p, _ in rungs), dtype=float))
+                    for rungs in ladders.values()]
+
+
+def analyse_levels(sweep: Sweep, noise: float) -> list[Level]:
+    """Path's and the family's time at each level of :func:`error_levels`
+    for ``noise`` (the reference's own relMSE), from one bootstrap."""
+    errors = replicated_errors(sweep, LEVEL_METRIC)
+    times = replicated_times(sweep)
+    curves = family_curves(sweep)
+    return [_level(sweep, curves, errors, times, error)
+            for error in error_levels(noise)]
+
+
+def _level(sweep: Sweep, curves: list[FamilyCurve], errors: np.ndarray, times: np.ndarray,
+           error: float) -> Level:
+    target = np.full(len(errors), error)
+    path = path_reach(sweep, errors, times, target)
+    family = envelope([reach(errors[:, c.columns], times[:, c.columns],
+                             c.paths if c.ladder else np.ones(1), target, number)
+                       for number, c in enumerate(curves)])
+    path_time = bounded(path.low[0], path.high[0], path.low[1:], path.high[1:])
+    # A replicate's time: where the family reaches the level, the least
+    # time that does; where it does not, the least time it was given.
+    seconds = np.where(np.isfinite(family.high), family.high, family.low)
+    reached = math.isfinite(family.high[0])
+    whitted_time = bounded(seconds[0], family.high[0], seconds[1:], family.high[1:])
+    curve = curves[family.curve[0]]
+    setting, paths = _family_setting(sweep, curve, family.spp_high[0]) if reached else (None,
+                                                                                      None)
+    return Level(error, path_time,
+                 bounded(path.spp_low[0], path.spp_high[0], path.spp_low[1:], path.spp_high[1:]),
+                 sweep.path_curves()[path.curve[0]][0], whitted_time, setting, paths,
+                 _speedup(path_time, whitted_time))
+
+
+def _family_setting(sweep: Sweep, curve: FamilyCurve, paths: float) -> tuple[str, float | None]:
+    """The setting that reaches a level on ``curve``: a ladder's first rung
+    with at least ``paths`` paths (and ``paths`` itself), or the setting."""
+    if not curve.ladder:
+        return sweep.points[curve.columns[0]].label, None
+    rung = int(np.searchsorted(curve.paths, paths - 1e-9))
+    return sweep.points[curve.columns[min(rung, len(curve.columns) - 1)]].label, float(paths)
+
+
+def _speedup(path: Estimate, whitted: Estimate) -> Estimate | None:
+    """Path's time over the family's; bounded above where the family does
+    not reach the level, and ``None`` where path does not either."""
+    if whitted.relation != ">":
+        return quotient(path, whitted)
+    if path.relation == ">":
+        return None
+    return Estimate(path.median / whitted.median, 0.0,
+                    path.high / whitted.low if whitted.low > 0 else math.inf, "<")
+
+
+def goal_summary(levels: list[Level]) -> dict:
+    """Whether the family is :data:`GOAL` times faster at every level, and
+    its least speed-up over the levels measured."""
+    measured = [level.speedup for level in levels if level.speedup is not None]
+    least = min(measured, key=lambda s: s.median) if measured else None
+    return {"goal": GOAL, "levels": len(levels),
+            "met": sum(level.goal == "met" for level in levels),
+            "faster": sum(level.verdict == "faster" for level in levels),
+            "met_at_every_level": bool(levels) and all(level.goal == "met" for level in levels),
+            "least_speedup": None if least is None else least.to_json()}
