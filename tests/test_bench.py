@@ -152,3 +152,18 @@ def test_the_bound_of_a_scene_without_shadow_rays():
     assert hits > 0
     assert stats["shadow"] == bound.rays["ray_test"] == bound.rays["shadow_march"] == 0
     assert bound.seconds_by_cast["ray_test"] == 0 and bound.seconds > 0
+
+
+def test_a_scene_with_indirect_paths_counts_their_rays_and_says_what_is_not_measured():
+    """The capture records the tree's rays only, so no bound is computed
+    from it, and a sentence says why; the indirect paths' rays are counted
+    with the rest."""
+    from mitsuba_whitted.bench import BenchSettings
+    from mitsuba_whitted.bench.suite import INDIRECT_UNCAPTURED, headline
+    from validation.scenes import GLASS_BOX
+    figures = headline(GLASS_BOX, BenchSettings.quick(GLASS_BOX), report=lambda line: None)
+    assert figures["indirect_samples"] == 4
+    assert figures["bound"] is None and figures["split"] is None
+    assert figures["not_measured"] == {"bound": INDIRECT_UNCAPTURED}
+    rays = figures["rays"]
+    assert rays["indirect"] > rays["camera"] and rays["indirect_shadow"] > 0

@@ -193,14 +193,24 @@ def _forward_gradient(scene, params, keys) -> np.ndarray:
     return np.array(rows)
 
 
+#: Why a scene with indirect paths has no gradient figures.
+INDIRECT_NOT_DIFFERENTIATED = ("the scene's whitted gathers indirect light "
+                               "(indirect_samples > 0), which is not differentiated")
+
+
 def measure(scene_path: Path, defines: dict, scene_settings: dict, repeats: int,
-            memory_resolution: int, equal_error: tuple, report=print) -> dict:
-    """Every gradient figure of the bench."""
-    report("timing gradients ...")
-    figures = gradient_timing(scene_path, defines, scene_settings, repeats)
-    report("peak memory of a gradient in a child process ...")
-    figures["peak_rss_mib"] = {str(memory_resolution): child_peak_memory(
-        scene_path, defines, dict(scene_settings, res=memory_resolution), work="gradient")}
+            memory_resolution: int, equal_error: tuple, report=print,
+            indirect: bool = False) -> dict:
+    """Every gradient figure of the bench; of the scene's own gradient none
+    where it has ``indirect`` paths."""
+    if indirect:
+        figures = {"not_measured": INDIRECT_NOT_DIFFERENTIATED}
+    else:
+        report("timing gradients ...")
+        figures = gradient_timing(scene_path, defines, scene_settings, repeats)
+        report("peak memory of a gradient in a child process ...")
+        figures["peak_rss_mib"] = {str(memory_resolution): child_peak_memory(
+            scene_path, defines, dict(scene_settings, res=memory_resolution), work="gradient")}
     report("equal gradient error against prb ...")
     figures["equal_error"] = equal_error_gradient(*equal_error, repeats=repeats)
     return figures
@@ -209,13 +219,15 @@ def measure(scene_path: Path, defines: dict, scene_settings: dict, repeats: int,
 def format_lines(figures: dict) -> list:
     """The gradient figures as lines of the bench's table."""
     eq = figures["equal_error"]
-    lines = [
+    lines = [f"  gradient: not measured: {figures['not_measured']}"] if (
+        "not_measured" in figures) else [
         f"  gradient (mi.render + dr.backward, {figures['parameters']} parameters, "
         f"{figures['entries']:,} entries)  {figures['gradient_s']:8.3f} s = "
         f"{figures['ratio']:.1f} x the render ({figures['render_s']:.3f} s in those rounds;"
         f" target 5 x); first {figures['first_gradient_s']:.3f} s",
         "  gradient peak RSS: " + ", ".join(f"{res} px {mib:,.0f} MiB"
-                                          for res, mib in figures["peak_rss_mib"].items()),
+                                          for res, mib in figures["peak_rss_mib"].items())]
+    lines += [
         f"  gradient at equal error against prb on {eq['scene']} at {eq['resolution']}^2"
         f" ({eq['entries']} entries): whitted {eq['whitted_seconds']:.3f} s, rounding error "
         f"{eq['whitted_rel_error']:.1e}; prb would need ~{eq['prb_spp_at_whitted_error']:.2g} spp, "

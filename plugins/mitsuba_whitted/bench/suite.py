@@ -72,7 +72,39 @@ def headline(scene_path: Path, settings: BenchSettings, report) -> dict:
         raise RuntimeError("mitsuba-whitted bench: the scene's integrator is not 'whitted'.")
     report("timing warm renders ...")
     timing = time_render(scene, integrator, settings.repeats)
+    casting = ({"bound": None, "split": None, "not_measured": {"bound": INDIRECT_UNCAPTURED}}
+               if integrator.indirect_samples else ray_casting(scene, integrator, settings, report))
+    return {
+        "scene": str(scene_path), "defines": settings.defines,
+        "settings": settings.scene_settings,
+        "resolution": list(scene.sensors()[0].film().crop_size()),
+        "indirect_samples": integrator.indirect_samples,
+        "first_render_in_process_s": timing.first,
+        "second_render_in_process_s": timing.second,
+        "warm_render_s": timing.warm.to_json(),
+        "warm_renders_s": timing.warm_all,
+        "rays": {k: timing.stats[k] for k in RAY_KINDS + (INDIRECT_KINDS
+                                                          if integrator.indirect_samples else ())},
+        "rays_per_second": timing.stats["total"] / timing.warm.median,
+        "aa_samples": timing.stats["aa_samples"],
+        **casting,
+        "peak_rss_mib_this_process": peak_rss_mib(),
+    }
 
+
+#: The rays a render counts, by kind, and those of its indirect paths.
+RAY_KINDS = ("camera", "reflection", "refraction", "passthrough", "shadow", "shadow_march",
+             "refined", "total")
+INDIRECT_KINDS = ("indirect", "indirect_shadow")
+#: Why a render with indirect paths has no ray-casting bound.
+INDIRECT_UNCAPTURED = ("the indirect paths cast their rays inside their own loop, which a "
+                       "capturing render does not record, so a bound from the recorded rays "
+                       "would leave most of the work out")
+
+
+def ray_casting(scene: mi.Scene, integrator, settings: BenchSettings, report) -> dict:
+    """The render's own rays cast through Mitsuba's ray casting: the bound
+    on the whole render, and on its first launch and the rest apart."""
     report("casting the render's own rays through Mitsuba's ray casting ...")
     integrator.capture_rays = True
     mi.render(scene, integrator=integrator)
@@ -86,17 +118,6 @@ def headline(scene_path: Path, settings: BenchSettings, report) -> dict:
                          settings.bound_rounds)
     del captured
     return {
-        "scene": str(scene_path), "defines": settings.defines,
-        "settings": settings.scene_settings,
-        "resolution": list(scene.sensors()[0].film().crop_size()),
-        "first_render_in_process_s": timing.first,
-        "second_render_in_process_s": timing.second,
-        "warm_render_s": timing.warm.to_json(),
-        "warm_renders_s": timing.warm_all,
-        "rays": {k: timing.stats[k] for k in ("camera", "reflection", "refraction", "passthrough",
-                                              "shadow", "shadow_march", "refined", "total")},
-        "rays_per_second": timing.stats["total"] / timing.warm.median,
-        "aa_samples": timing.stats["aa_samples"],
         "bound": {**{f"{name}_{figure}": values[name] for name in CASTS
                      for figure, values in (("rays", bound.rays), ("s", bound.seconds_by_cast),
                                             ("coherent", bound.coherent))},
@@ -108,7 +129,6 @@ def headline(scene_path: Path, settings: BenchSettings, report) -> dict:
                   "rest_s": split.rest_seconds, "rest_bound_s": split.rest_bound,
                   "rest_ratio": split.rest_ratio,
                   "launches": split.launches, "frozen_call_s": split.frozen_call_seconds},
-        "peak_rss_mib_this_process": peak_rss_mib(),
     }
 
 
@@ -138,5 +158,6 @@ def run(settings: BenchSettings, report=print) -> dict:
                                                  settings.equal_error_rounds)
     results["gradient"] = gradients.measure(
         scene_path, settings.defines, settings.scene_settings, settings.repeats,
-        settings.memory_resolutions[0], settings.gradient, report)
+        settings.memory_resolutions[0], settings.gradient, report,
+        indirect=results["indirect_samples"] > 0)
     return results

@@ -46,6 +46,19 @@ def _gain_text(row: dict, metric: str) -> str:
             f"{path['sampler']}, {verdict_text(Estimate.from_json(row['speedup'][metric]))}")
 
 
+def _bound_lines(bound: dict, split: dict) -> list:
+    return [
+        "  bound: " + " + ".join(
+            f"{name} {bound[name + '_rays']:,} rays {bound[name + '_s']:.3f} s"
+            f" ({_mode(bound[name + '_coherent'])})" for name in CASTS)
+        + f" = {bound['seconds']:.3f} s",
+        f"  bound / actual              {bound['ratio']:8.2f}  (median of {len(bound['ratios'])}"
+        f" rounds of render and casts: {min(bound['ratios']):.2f}"
+        f" to {max(bound['ratios']):.2f}; render {bound['render_s']:.3f} s in those rounds)",
+        *_split_lines(split),
+    ]
+
+
 def format_table(results: dict) -> str:
     """The benchmark as a plain-text table."""
     rays = results["rays"]
@@ -70,14 +83,8 @@ def format_table(results: dict) -> str:
     lines += [
         "  rays: " + ", ".join(f"{k} {v:,}" for k, v in rays.items()),
         f"  rays/s                      {results['rays_per_second'] / 1e6:8.2f} M",
-        "  bound: " + " + ".join(
-            f"{name} {bound[name + '_rays']:,} rays {bound[name + '_s']:.3f} s"
-            f" ({_mode(bound[name + '_coherent'])})" for name in CASTS)
-        + f" = {bound['seconds']:.3f} s",
-        f"  bound / actual              {bound['ratio']:8.2f}  (median of {len(bound['ratios'])}"
-        f" rounds of render and casts: {min(bound['ratios']):.2f}"
-        f" to {max(bound['ratios']):.2f}; render {bound['render_s']:.3f} s in those rounds)",
-        *_split_lines(results["split"]),
+        *(_bound_lines(bound, results["split"]) if bound is not None
+          else [f"  bound: not measured: {results['not_measured']['bound']}"]),
         "  peak RSS by film width: " + ", ".join(f"{res} px {mib:,.0f} MiB"
                                                for res, mib in results["peak_rss_mib"].items()),
         "  scaling (warm):",
