@@ -89,10 +89,27 @@ def test_a_level_no_whitted_setting_reaches_bounds_the_speedup_above():
     below = [level for level in levels if level.error < 2e-2]
     assert below
     for level in below:
+        # More samples of its own converge to its model, not below it.
         assert level.setting is None and level.whitted.relation == ">"
-        assert level.speedup.relation == "<" and level.speedup.low == 0
-        assert level.goal in ("missed", "undecided")
+        assert math.isinf(level.whitted.median)
+        assert level.speedup.high == 0 and level.verdict == "slower" and level.goal == "missed"
+        assert level.to_json()["whitted"]["seconds"]["median"] is None
     assert not goal_summary(levels)["met_at_every_level"]
+
+
+def test_a_ladder_that_stops_short_takes_more_than_its_last_rung():
+    # Its last rung errs 0.1/16 at 16 ms; 1e-3 would take it more paths.
+    ladder = _ladder((4, 16), PATH_ERROR, PATH_SECONDS / 10)
+    level = [level for level in analyse_levels(_sweep(ladder), noise=2e-4)
+             if level.error < PATH_ERROR / 16][0]
+    assert level.setting is None and level.whitted.relation == ">"
+    assert level.whitted.median == pytest.approx(16 * PATH_SECONDS / 10)
+    # Path reaches it at 0.1/error spp; the speed-up is at most path's time
+    # over the last rung's.
+    path_seconds = PATH_SECONDS * PATH_ERROR / level.error
+    assert level.path.median == pytest.approx(path_seconds)
+    assert level.speedup.relation == "<"
+    assert level.speedup.median == pytest.approx(path_seconds / (16 * PATH_SECONDS / 10))
 
 
 def test_a_level_neither_reaches_is_not_measured():

@@ -55,16 +55,20 @@ class Estimate:
     relation: str = "="
 
     def to_json(self) -> dict:
-        """``median``, ``low``, ``high`` (``None`` for an infinite end) and
-        ``relation``."""
-        return {"median": self.median, "low": self.low,
-                "high": None if math.isinf(self.high) else self.high,
-                "relation": self.relation}
+        """``median``, ``low``, ``high`` (``None`` where infinite: JSON has
+        no infinity) and ``relation``."""
+        return {"median": _finite_or_none(self.median), "low": _finite_or_none(self.low),
+                "high": _finite_or_none(self.high), "relation": self.relation}
 
     @classmethod
     def from_json(cls, values: dict) -> "Estimate":
-        high = math.inf if values["high"] is None else values["high"]
-        return cls(values["median"], values["low"], high, values["relation"])
+        median, low, high = (math.inf if values[key] is None else values[key]
+                             for key in ("median", "low", "high"))
+        return cls(median, low, high, values["relation"])
+
+
+def _finite_or_none(value: float) -> float | None:
+    return None if math.isinf(value) else value
 
 
 def verdict(speedup: Estimate) -> str:

@@ -15,20 +15,24 @@ sweep's bootstrap, so each carries its interval, and the speed-up spans
 both (:func:`.intervals.quotient`).
 
 An error that no Whitted setting reaches within the sweep leaves the
-family's time open above, and the speed-up bounded above; one that path's
-largest rung does not reach leaves path's time open above, and the
-speed-up bounded below; where neither reaches it, nothing is measured.
+family's time open above, from the last rung of its cheapest ladder (a
+setting alone converges to its own model, and with more samples gets no
+nearer), and the speed-up bounded above (0 where the family has no
+ladder); one that path's largest rung does not reach leaves path's time
+open above, and the speed-up bounded below; where neither reaches it,
+nothing is measured.
 """
 
 from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .equal_error import envelope, path_reach, reach, replicated_errors, replicated_times
+from .equal_error import (Reach, envelope, path_reach, reach, replicated_errors,
+                          replicated_times)
 from .intervals import Estimate, bounded, quotient, verdict
 from .sweep import Sweep
 
@@ -142,8 +146,7 @@ def _level(sweep: Sweep, curves: list[FamilyCurve], errors: np.ndarray, times: n
            error: float) -> Level:
     target = np.full(len(errors), error)
     path = path_reach(sweep, errors, times, target)
-    family = envelope([reach(errors[:, c.columns], times[:, c.columns],
-                             c.paths if c.ladder else np.ones(1), target, number)
+    family = envelope([_family_reach(c, errors, times, target, number)
                        for number, c in enumerate(curves)])
     path_time = bounded(path.low[0], path.high[0], path.low[1:], path.high[1:])
     # A replicate's time: where the family reaches the level, the least
@@ -151,6 +154,8 @@ def _level(sweep: Sweep, curves: list[FamilyCurve], errors: np.ndarray, times: n
     seconds = np.where(np.isfinite(family.high), family.high, family.low)
     reached = math.isfinite(family.high[0])
     whitted_time = bounded(seconds[0], family.high[0], seconds[1:], family.high[1:])
+    if not reached:
+        whitted_time = replace(whitted_time, relation=">")
     curve = curves[family.curve[0]]
     setting, paths = _family_setting(sweep, curve, family.spp_high[0]) if reached else (None,
                                                                                       None)
@@ -158,6 +163,20 @@ def _level(sweep: Sweep, curves: list[FamilyCurve], errors: np.ndarray, times: n
                  bounded(path.spp_low[0], path.spp_high[0], path.spp_low[1:], path.spp_high[1:]),
                  sweep.path_curves()[path.curve[0]][0], whitted_time, setting, paths,
                  _speedup(path_time, whitted_time))
+
+
+def _family_reach(curve: FamilyCurve, errors: np.ndarray, times: np.ndarray,
+                  target: np.ndarray, number: int) -> Reach:
+    """Where ``curve`` reaches ``target``. A ladder that does not would with
+    more paths, at more than its last rung's time; a setting alone never
+    does (more of its own samples converge to its model, not below it), and
+    takes no time bound from its own render."""
+    if curve.ladder:
+        return reach(errors[:, curve.columns], times[:, curve.columns], curve.paths, target,
+                     number)
+    found = reach(errors[:, curve.columns], times[:, curve.columns], np.ones(1), target, number)
+    found.low = np.where(np.isinf(found.high), np.inf, found.low)
+    return found
 
 
 def _family_setting(sweep: Sweep, curve: FamilyCurve, paths: float) -> tuple[str, float | None]:
@@ -176,8 +195,9 @@ def _speedup(path: Estimate, whitted: Estimate) -> Estimate | None:
         return quotient(path, whitted)
     if path.relation == ">":
         return None
-    return Estimate(path.median / whitted.median, 0.0,
-                    path.high / whitted.low if whitted.low > 0 else math.inf, "<")
+    with np.errstate(divide="ignore"):
+        return Estimate(float(np.divide(path.median, whitted.median)), 0.0,
+                        float(np.divide(path.high, whitted.low)), "<")
 
 
 def goal_summary(levels: list[Level]) -> dict:

@@ -138,14 +138,13 @@ class MarkdownReport:
         as a line."""
         plt = _pyplot()
         path, link = self._target(name)
-        figure, axes_row = plt.subplots(1, len(panels), figsize=(6.2 * len(panels) + 2.6, 4.6),
-                                        dpi=100, squeeze=False)
+        figure, axes_row = plt.subplots(1, len(panels), figsize=(6.2 * len(panels) + 3.2, 5.0),
+                                        dpi=100, squeeze=False, layout="constrained")
         for axes, panel in zip(axes_row[0], panels):
-            _draw_panel(axes, panel, plt.get_cmap("tab10"))
+            _draw_panel(axes, panel, plt.get_cmap("tab20"))
         handles, labels = axes_row[0][0].get_legend_handles_labels()
-        figure.legend(handles, labels, fontsize=7, loc="upper left", bbox_to_anchor=(0.79, 0.95))
+        figure.legend(handles, labels, fontsize=7, loc="outside right upper")
         figure.suptitle(title, fontsize=10)
-        figure.tight_layout(rect=(0, 0, 0.79, 1))
         _save(figure, path)
         return link
 
@@ -199,14 +198,17 @@ def _draw_panel(axes, panel: Panel, colours) -> None:
         axes.annotate(f"{spp}", (seconds, error), textcoords="offset points", xytext=(3, 3),
                       fontsize=6, color=_CURVE_STYLES[0][0])
     for index, marker in enumerate(panel.markers):
-        colour, shape = colours((index + 1) % 10), _MARKERS[index % len(_MARKERS)]
+        colour, shape = colours((index + 2) % 20), _MARKERS[index % len(_MARKERS)]
         axes.plot([marker.seconds] * 2, [marker.total, marker.sampling], "-", color=colour,
                   alpha=0.4, linewidth=1)
         axes.plot(marker.seconds, marker.total, shape, color=colour, markersize=7,
                   label=f"whitted: {marker.label}")
         axes.plot(marker.seconds, marker.sampling, shape, color=colour, markersize=7,
                   markerfacecolor="none")
-    for index, (label, error) in enumerate(panel.biases):
+    # A model without bias (path's own, with indirect light) has no place
+    # on a logarithmic axis.
+    for index, (label, error) in enumerate((label, error) for label, error in panel.biases
+                                           if error > 0):
         place, align, shift = _BIAS_LABELS[index % len(_BIAS_LABELS)]
         axes.axhline(error, color="grey", linestyle=(0, (1, 1 + index)), linewidth=1)
         axes.annotate(f"model bias: {label}", (place, error), xycoords=("axes fraction", "data"),

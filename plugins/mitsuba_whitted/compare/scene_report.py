@@ -9,6 +9,7 @@ the README, section *Speed against error*).
 from __future__ import annotations
 
 import json
+import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -324,7 +325,9 @@ def _path_cell(path: dict) -> str:
 
 def _family_cell(whitted: dict) -> str:
     if whitted["setting"] is None:
-        return f"not reached ({_seconds(whitted['seconds'])} s)"
+        seconds = Estimate.from_json(whitted["seconds"])
+        return ("not reached by any setting" if math.isinf(seconds.median)
+                else f"not reached, > {number(seconds.median)} s (the ladder's last rung)")
     paths = "" if whitted["paths"] is None else f", {number(whitted['paths'], 2)} paths"
     return f"{_seconds(whitted['seconds'])} s, {whitted['setting']}{paths}"
 
