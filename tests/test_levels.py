@@ -53,9 +53,14 @@ def test_levels_run_from_the_top_down_to_three_times_the_noise():
 def test_a_ladder_is_one_curve_and_other_settings_stand_alone():
     alone = _point("aa none", "whitted", 0.001, 0.05, integrator={"type": "whitted"})
     ladder = _ladder((16, 4, 64), 0.1, 0.001)
-    curves = family_curves(_sweep([alone] + ladder))
-    assert [c.columns for c in curves] == [[0], [2, 1, 3]]
-    assert list(curves[1].paths) == [4, 16, 64]
+    # A setting with indirect paths and no other rung is no ladder.
+    single = _point("indirect 4, deeper", "whitted", 0.001, 0.05,
+                    integrator={"type": "whitted", "max_depth": 40, "indirect_samples": 4})
+    curves = family_curves(_sweep([alone] + ladder + [single]), {"indirect 64": 1e-5})
+    assert [c.columns for c in curves] == [[0], [2, 1, 3], [4]]
+    assert list(curves[1].paths) == [4, 16, 64] and not curves[2].ladder
+    # A ladder's bias is its last rung's model's.
+    assert [c.bias for c in curves] == [0, 1e-5, 0]
 
 
 def test_a_ladder_four_times_cheaper_is_four_times_faster_at_every_level():
@@ -82,14 +87,14 @@ def test_a_setting_reaches_a_level_at_its_own_time_when_it_is_below_it():
     assert level.verdict == "slower" and level.goal == "missed"
 
 
-def test_a_level_no_whitted_setting_reaches_bounds_the_speedup_above():
-    # A classic setting stuck at 2e-2 (its model's bias) cannot reach 1e-2.
+def test_a_level_below_every_models_bias_is_out_of_reach():
+    # A classic setting whose model errs 2e-2 cannot reach 1e-2 with any
+    # number of samples.
     biased = _point("aa none", "whitted", 0.001, 2e-2, integrator={"type": "whitted"})
-    levels = analyse_levels(_sweep([biased]), noise=1e-3)
+    levels = analyse_levels(_sweep([biased]), noise=1e-3, biases={"aa none": 2e-2})
     below = [level for level in levels if level.error < 2e-2]
     assert below
     for level in below:
-        # More samples of its own converge to its model, not below it.
         assert level.setting is None and level.whitted.relation == ">"
         assert math.isinf(level.whitted.median)
         assert level.speedup.high == 0 and level.verdict == "slower" and level.goal == "missed"
@@ -97,8 +102,21 @@ def test_a_level_no_whitted_setting_reaches_bounds_the_speedup_above():
     assert not goal_summary(levels)["met_at_every_level"]
 
 
+def test_a_level_above_a_models_bias_takes_more_than_the_setting():
+    # The same setting, its error all sampling (a bias of 1e-4): more
+    # samples would reach 1e-2, in more than its 1 ms.
+    noisy = _point("aa none", "whitted", 0.001, 2e-2, integrator={"type": "whitted"})
+    level = [level for level in analyse_levels(_sweep([noisy]), noise=1e-3,
+                                               biases={"aa none": 1e-4})
+             if level.error < 2e-2][0]
+    assert level.whitted.relation == ">" and level.whitted.median == pytest.approx(0.001)
+    path_seconds = PATH_SECONDS * PATH_ERROR / level.error
+    assert level.speedup.relation == "<"
+    assert level.speedup.median == pytest.approx(path_seconds / 0.001)
+
+
 def test_a_ladder_that_stops_short_takes_more_than_its_last_rung():
-    # Its last rung errs 0.1/16 at 16 ms; 1e-3 would take it more paths.
+    # Its last rung errs 0.1/16 at 1.6 ms; 1e-3 would take it more paths.
     ladder = _ladder((4, 16), PATH_ERROR, PATH_SECONDS / 10)
     level = [level for level in analyse_levels(_sweep(ladder), noise=2e-4)
              if level.error < PATH_ERROR / 16][0]
@@ -115,7 +133,7 @@ def test_a_ladder_that_stops_short_takes_more_than_its_last_rung():
 def test_a_level_neither_reaches_is_not_measured():
     biased = _point("aa none", "whitted", 0.001, 2e-2, integrator={"type": "whitted"})
     # Path's last rung reaches 0.1/64 = 1.6e-3; the floor is 3e-4.
-    levels = analyse_levels(_sweep([biased]), noise=1e-4)
+    levels = analyse_levels(_sweep([biased]), noise=1e-4, biases={"aa none": 2e-2})
     assert levels[-1].speedup is None
     assert levels[-1].verdict == levels[-1].goal == "not measured"
     assert GOAL == 2.0

@@ -208,7 +208,8 @@ def speed_section(report: MarkdownReport, cache: ReferenceCache, backend,
     report.heading("3. Speed against error")
     report.paragraph(
         f"Each scene at {size} x {size}: Whitted's settings (anti-aliasing modes, thresholds, "
-        f"depths) and `path` at 1, 2, 4, ... {options.path_max_spp} spp with each of its "
+        "depths, and the hybrid ladder: indirect light on path's model, 4 to 256 paths per "
+        "pixel) and `path` at 1, 2, 4, ... {options.path_max_spp} spp with each of its "
         f"samplers ({', '.join(PATH_SAMPLERS)}), against a {options.reference_spp}-spp "
         f"`path` reference. {timing_sentence(options.rounds)} "
         f"{split_sentence(options.converged_side)} {speedup_sentence()} The full report of "

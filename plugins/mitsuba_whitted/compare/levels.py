@@ -3,8 +3,8 @@
 noise, the time the Whitted family needs to reach it against the time
 ``path`` needs.
 
-Whitted's family is every Whitted setting of a sweep. Settings that differ
-only in their indirect paths per pixel form a ladder, read like one of
+Whitted's family is every Whitted setting of a sweep. Two or more settings
+that differ only in their indirect paths per pixel form a ladder, read like one of
 path's curves (interpolated in log-log between its rungs: a user may ask
 for any count); every other setting stands alone and reaches an error at
 its own time when its error is at most that. The family's time at a level
@@ -15,12 +15,13 @@ sweep's bootstrap, so each carries its interval, and the speed-up spans
 both (:func:`.intervals.quotient`).
 
 An error that no Whitted setting reaches within the sweep leaves the
-family's time open above, from the last rung of its cheapest ladder (a
-setting alone converges to its own model, and with more samples gets no
-nearer), and the speed-up bounded above (0 where the family has no
-ladder); one that path's largest rung does not reach leaves path's time
-open above, and the speed-up bounded below; where neither reaches it,
-nothing is measured.
+family's time open above: more samples of a setting (more paths, finer
+anti-aliasing) would take more than its time, and could not reach an
+error below its model's bias at all, since they converge to the model.
+The speed-up is then bounded above (0 where no setting's model allows the
+error). An error that path's largest rung does not reach leaves path's
+time open above, and the speed-up bounded below; where neither reaches
+it, nothing is measured.
 """
 
 from __future__ import annotations
@@ -102,42 +103,49 @@ class Level:
 @dataclass(frozen=True)
 class FamilyCurve:
     """Whitted settings read as one curve: a ladder's rungs in order of
-    their indirect paths, or one setting alone (``paths`` empty)."""
+    their indirect paths, or one setting alone (``paths`` empty); and the
+    bias of the model its last rung converges to (0 where unknown)."""
 
     columns: list
     paths: np.ndarray
+    bias: float = 0.0
 
     @property
     def ladder(self) -> bool:
         return len(self.paths) > 0
 
 
-def family_curves(sweep: Sweep) -> list[FamilyCurve]:
-    """The Whitted family's curves: each ladder of settings that differ
-    only in ``indirect_samples``, and each other setting alone."""
-    ladders, alone = {}, []
+def family_curves(sweep: Sweep, biases: dict | None = None) -> list[FamilyCurve]:
+    """The Whitted family's curves: each ladder of two or more settings
+    that differ only in ``indirect_samples``, and each other setting
+    alone; ``biases``: each setting's model bias, by label."""
+    groups = {}
     for index, point in enumerate(sweep.points):
         if point.kind != "whitted":
             continue
         settings = point.setting.integrator
-        paths = settings.get("indirect_samples", 0)
-        if paths > 0:
-            rest = {k: v for k, v in settings.items() if k != "indirect_samples"}
-            ladders.setdefault(json.dumps(rest, sort_keys=True, default=str),
-                               []).append((paths, index))
-        else:
-            alone.append(FamilyCurve([index], np.array([])))
-    return alone + [FamilyCurve([i for _, i in sorted(rungs)],
-                                np.array(sorted(p for p, _ in rungs), dtype=float))
-                    for rungs in ladders.values()]
+        rest = {k: v for k, v in settings.items() if k != "indirect_samples"}
+        key = (json.dumps(rest, sort_keys=True, default=str)
+               if settings.get("indirect_samples", 0) > 0 else point.label)
+        groups.setdefault(key, []).append((settings.get("indirect_samples", 0), index))
+    curves = []
+    for rungs in groups.values():
+        rungs.sort()
+        last = sweep.points[rungs[-1][1]].label
+        curves.append(FamilyCurve([i for _, i in rungs],
+                                  np.array([p for p, _ in rungs], dtype=float)
+                                  if len(rungs) > 1 else np.array([]),
+                                  (biases or {}).get(last, 0.0)))
+    return curves
 
 
-def analyse_levels(sweep: Sweep, noise: float) -> list[Level]:
+def analyse_levels(sweep: Sweep, noise: float, biases: dict | None = None) -> list[Level]:
     """Path's and the family's time at each level of :func:`error_levels`
-    for ``noise`` (the reference's own relMSE), from one bootstrap."""
+    for ``noise`` (the reference's own relMSE), from one bootstrap;
+    ``biases``: each Whitted setting's model bias in relMSE, by label."""
     errors = replicated_errors(sweep, LEVEL_METRIC)
     times = replicated_times(sweep)
-    curves = family_curves(sweep)
+    curves = family_curves(sweep, biases)
     return [_level(sweep, curves, errors, times, error)
             for error in error_levels(noise)]
 
@@ -150,7 +158,7 @@ def _level(sweep: Sweep, curves: list[FamilyCurve], errors: np.ndarray, times: n
                        for number, c in enumerate(curves)])
     path_time = bounded(path.low[0], path.high[0], path.low[1:], path.high[1:])
     # A replicate's time: where the family reaches the level, the least
-    # time that does; where it does not, the least time it was given.
+    # time that does; where it does not, the least time it could.
     seconds = np.where(np.isfinite(family.high), family.high, family.low)
     reached = math.isfinite(family.high[0])
     whitted_time = bounded(seconds[0], family.high[0], seconds[1:], family.high[1:])
@@ -167,15 +175,13 @@ def _level(sweep: Sweep, curves: list[FamilyCurve], errors: np.ndarray, times: n
 
 def _family_reach(curve: FamilyCurve, errors: np.ndarray, times: np.ndarray,
                   target: np.ndarray, number: int) -> Reach:
-    """Where ``curve`` reaches ``target``. A ladder that does not would with
-    more paths, at more than its last rung's time; a setting alone never
-    does (more of its own samples converge to its model, not below it), and
-    takes no time bound from its own render."""
-    if curve.ladder:
-        return reach(errors[:, curve.columns], times[:, curve.columns], curve.paths, target,
-                     number)
-    found = reach(errors[:, curve.columns], times[:, curve.columns], np.ones(1), target, number)
-    found.low = np.where(np.isinf(found.high), np.inf, found.low)
+    """Where ``curve`` reaches ``target``. Where it does not, more samples
+    (paths, or anti-aliasing) would take more than its last rung's time,
+    and could not at all below its model's bias, to which they converge."""
+    found = reach(errors[:, curve.columns], times[:, curve.columns],
+                  curve.paths if curve.ladder else np.ones(1), target, number)
+    if curve.bias >= target[0]:
+        found.low = np.where(np.isinf(found.high), np.inf, found.low)
     return found
 
 

@@ -143,7 +143,8 @@ def _results(name: str, reference: Reference, sweep: Sweep, analysis: Analysis,
     biases = {id(c): mean_errors(c.image, reference.image) for c in renders}
     shown = {p.label for p in shown_rungs(sweep)}
     noise = noise_rel_mse(reference.variance, reference.image)
-    levels = analyse_levels(sweep, noise)
+    levels = analyse_levels(sweep, noise, {label: biases[id(c)]["relmse"]
+                                           for label, c in converged.items()})
     return {
         "scene": name,
         "reference": {"spp": reference.spp, "passes": REFERENCE_PASSES,
@@ -326,8 +327,8 @@ def _path_cell(path: dict) -> str:
 def _family_cell(whitted: dict) -> str:
     if whitted["setting"] is None:
         seconds = Estimate.from_json(whitted["seconds"])
-        return ("not reached by any setting" if math.isinf(seconds.median)
-                else f"not reached, > {number(seconds.median)} s (the ladder's last rung)")
+        return ("not reached: below every model's bias" if math.isinf(seconds.median)
+                else f"not reached; more samples would take > {number(seconds.median)} s")
     paths = "" if whitted["paths"] is None else f", {number(whitted['paths'], 2)} paths"
     return f"{_seconds(whitted['seconds'])} s, {whitted['setting']}{paths}"
 
