@@ -48,7 +48,7 @@ CACHE = HERE / "cache"
 #: Equivalence test: batches x spp path samples per pixel-centre ray.
 BATCHES, SPP = 32, 64
 #: The report's scene: reference resolution and samples per pixel, chosen
-#: so that the whole report renders in well under 20 minutes on 2 cores.
+#: so that the whole report renders in under 20 minutes on 2 cores.
 SCENE_RES, SCENE_SPP = 300, 4096
 #: Timing rounds of every sweep (each setting timed once in a round).
 ROUNDS = 9
