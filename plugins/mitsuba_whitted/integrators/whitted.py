@@ -45,7 +45,9 @@ def _given(props: mi.Properties, name: str, default):
 def _whole(default: int):
     def read(props: mi.Properties, name: str) -> int:
         value = checked_numbers(_given(props, name, default), PLUGIN_NAME, name)[0]
-        check(value == int(value), PLUGIN_NAME, name, f"must be a whole number (got {value:g})")
+        # ``mi.traverse`` hands the whole settings out as 32-bit integers.
+        check(value == int(value) and -2 ** 31 <= value < 2 ** 31, PLUGIN_NAME, name,
+              f"must be a whole number from -2^31 to 2^31 - 1 (got {value:g})")
         return int(value)
     return read
 
