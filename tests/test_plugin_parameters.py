@@ -330,7 +330,7 @@ INTEGRATOR_CASES = [
     ("min_throughput", NAN, NAN, '<float name="min_throughput" value="nan"/>'),
     ("min_throughput", -1.0, INF, '<float name="min_throughput" value="inf"/>'),
     ("aa_samples", 0, 0, '<integer name="aa_samples" value="0"/>'),
-    ("aa_samples", 9, 9, '<string name="aa" value="grid"/><integer name="aa_samples" value="9"/>'),
+    ("aa_samples", -3, 1e10, '<float name="aa_samples" value="1e10"/>'),
     ("aa_threshold", -0.1, -0.1, '<float name="aa_threshold" value="-0.1"/>'),
     ("aa_threshold", INF, "0.5", '<vector name="aa_threshold" x="1" y="2" z="3"/>'),
     ("aa_max_depth", 17, 17, '<integer name="aa_max_depth" value="17"/>'),
