@@ -175,6 +175,7 @@ CASES = [
     ("tartan", "frequency", INF, INF, '<float name="frequency" value="inf"/>'),
     ("tartan", "frequency", NAN, NAN, '<float name="frequency" value="nan"/>'),
     ("tartan", "frequency", 0.0, "3", '<string name="frequency" value="3"/>'),
+    ("tartan", "frequency", 1e7, 1e30, '<float name="frequency" value="1e30"/>'),
     ("tartan", "color", [NAN, 0, 0], rgb(NAN, 0, 0), '<rgb name="color" value="nan, 0, 0"/>'),
     ("tartan", "color", [-1, 0.5, 0], rgb(-1, 0.5, 0), '<rgb name="color" value="-1, 0.5, 0"/>'),
     ("tartan", "color", lanes(2), "orange", '<string name="color" value="orange"/>'),
@@ -200,6 +201,8 @@ CASES = [
     ("planar_map", "z_min", 5.0, "-5", '<string name="z_min" value="-5"/>'),
     ("planar_map", "z_max", NAN, NAN, '<float name="z_max" value="nan"/>'),
     ("planar_map", "z_max", -2.0, -2.0, '<float name="z_max" value="-2"/>'),
+    ("planar_map", "x_max", -0.9999999, -0.9999999, '<float name="x_max" value="-0.9999999"/>'),
+    ("planar_map", "z_min", 0.9999999, None, None),
 ]
 
 XML_SCENE = """<scene version="3.0.0">
