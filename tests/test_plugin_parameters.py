@@ -164,6 +164,8 @@ CASES = [
     ("capped_cylinder", "radius", NAN, NAN, '<float name="radius" value="nan"/>'),
     ("capped_cylinder", "radius", lanes(2), [1, 2, 3], '<string name="radius" value="1"/>'),
     ("capped_cylinder", "height", 0.0, 0.0, '<float name="height" value="0"/>'),
+    ("capped_cylinder", "radius", 1e20, 1e30, '<float name="radius" value="1e30"/>'),
+    ("capped_cylinder", "height", 1e-25, 1e25, '<float name="height" value="1e25"/>'),
     ("capped_cylinder", "height", INF, INF, '<float name="height" value="inf"/>'),
     ("capped_cylinder", "segments", 2, 2, '<integer name="segments" value="2"/>'),
     ("capped_cylinder", "segments", 1 << 20, 6.5, '<float name="segments" value="6.5"/>'),
