@@ -649,3 +649,58 @@ def test_the_capped_cylinder_is_marked_analytic_and_built_in_shapes_are_not():
     assert marked == {"cyl": True, "ball": False}
     with pytest.raises(TypeError, match="lacks canonical_to_world_matrix"):
         analytic(type("Unplaced", (), {"world_to_canonical_matrix": lambda self: None}))
+
+
+# --------------------------------------------------------------------------
+# Sizes float32 ray tests cannot hit
+# --------------------------------------------------------------------------
+
+@pytest.mark.parametrize("props, named", [
+    ({"radius": 1e20}, "radius"), ({"radius": 1e30}, "radius"), ({"height": 1e25}, "height"),
+    ({"radius": 1e-25}, "radius"), ({"to_world": 1e21}, "to_world"),
+    ({"radius": 1e10, "to_world": 1e10}, "radius"), ({"to_world": 1e-20}, "to_world"),
+], ids=lambda value: "-".join(f"{k}={v}" for k, v in value.items())
+    if isinstance(value, dict) else value)
+def test_sizes_whose_ray_test_overflows_float32_are_refused_in_one_sentence(props, named):
+    """A cylinder whose proxy triangles float32 cannot intersect (it
+    vanished from the image, measured at radius 3e18): one sentence naming
+    the radius or height out of range, else the placement (``to_world``, a
+    scale here), and the limit."""
+    props = {key: mi.ScalarTransform4f().scale(value) if key == "to_world" else value
+             for key, value in props.items()}
+    with pytest.raises(RuntimeError) as refused:
+        mi.load_dict({"type": "capped_cylinder", **props})
+    sentence = str(refused.value).strip().splitlines()[-1]
+    assert sentence.startswith(f"ParameterError: capped_cylinder: parameter '{named}' makes "
+                               "the cylinder's triangles"), sentence
+    assert f"{capped_cylinder.MAX_LENGTH:.2g} long" in sentence
+
+
+def test_a_cylinder_near_the_largest_size_renders_its_cap_as_a_lit_plane():
+    """Radius 1e17, height 1, seen from a few units above its top cap: the
+    cap fills the view as a plane. Oracle: a diffuse plane under a point
+    light in float64 (albedo / pi x I cos / d^2) at the pixel centres."""
+    from mitsuba_whitted.camera import camera_rays, pixel_centres
+    from validation.scenes import camera, integrator, scene
+
+    albedo, intensity, light, top = 0.7, 10.0, np.array([1.0, 3.0, 1.0]), 0.5
+    loaded = mi.load_dict(scene(
+        {"type": "capped_cylinder", "radius": 1e17, "height": 1.0, "center": [0, -0.5, 0],
+         "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [albedo] * 3}}},
+        {"type": "point", "position": light.tolist(),
+         "intensity": {"type": "rgb", "value": [intensity] * 3}},
+        sensor=camera(origin=(0, 3, 5), target=(0, 0, 0), size=16),
+        whitted=integrator(aa="none")))
+    image = np.array(mi.render(loaded))[..., 0].ravel()
+    assert_finite(image)
+    sensor = loaded.sensors()[0]
+    ray, _ = camera_rays(sensor, pixel_centres(sensor.film()))
+    o, d = np.array(ray.o, dtype=np.float64).T, np.array(ray.d, dtype=np.float64).T
+    t = (top - o[:, 1]) / d[:, 1]
+    p = o + t[:, None] * d
+    to_light = light - p
+    distance = np.linalg.norm(to_light, axis=1)
+    expected = albedo / np.pi * intensity * (to_light[:, 1] / distance) / distance ** 2
+    hits = t > 0
+    assert hits.sum() > 100
+    np.testing.assert_allclose(image[hits], expected[hits], rtol=1e-4)

@@ -15,8 +15,9 @@ import pytest
 
 from conftest import assert_finite
 from mitsuba_whitted.integrators import whitted as whitted_module
-from mitsuba_whitted.integrators.shading import MAX_TREE_RAYS
-from validation.scenes import camera, integrator, rgb, scene, sphere
+from mitsuba_whitted.integrators.scene_needs import SceneNeeds
+from mitsuba_whitted.integrators.shading import MAX_TREE_RAYS, HitShader, TreeSettings
+from validation.scenes import camera, diffuse, floor, integrator, point_light, rgb, scene, sphere
 
 LE, R = 0.25, 0.99
 TRACERS = {"depth-first tracer": False, "wavefront tracer": True}
@@ -100,3 +101,75 @@ def test_a_sample_count_passed_to_mi_render_is_named_once(monkeypatch):
                                       plain)
     assert len(warnings) == 1
     assert "spp=16 is not used" in warnings[0] and "'aa'" in warnings[0]
+
+
+#: What some users write for "no limit": the largest ``max_depth``.
+LARGEST_DEPTH = 2 ** 31 - 1
+#: ``HitShader.work`` calls a render may make: a few per kernel recorded
+#: and per generation traced, never one per possible generation.
+WORK_CALLS = 1000
+
+
+def open_scene(*objects):
+    """``objects`` over a lit floor under an open sky: every ray tree ends
+    where its rays reach a diffuse surface or leave the scene."""
+    return mi.load_dict(scene(floor(), *objects, point_light((1, 3, 3)),
+                              sensor=camera(origin=(0, 1, 5), size=12)))
+
+
+def count_work(monkeypatch) -> list:
+    """Count the calls of ``HitShader.work``, failing past ``WORK_CALLS``."""
+    calls, work = [], HitShader.work
+
+    def counted(shader, generation):
+        calls.append(generation)
+        assert len(calls) <= WORK_CALLS, "the cost follows max_depth, not the rays traced"
+        return work(shader, generation)
+
+    monkeypatch.setattr(HitShader, "work", counted)
+    return calls
+
+
+OPEN_SCENES = {
+    "no mirrors, depth-first": ((sphere((0, 0, 0), 0.8, diffuse(0.7, 0.3, 0.2)),), False),
+    "mirror balls, depth-first": ((sphere((-0.6, 0, 0), 0.6, {"type": "conductor"}),
+                                   sphere((0.6, 0.1, 0), 0.5, {"type": "conductor"})), False),
+    "glass and mirror, wavefront": ((sphere((-0.6, 0, 0), 0.6, {"type": "dielectric"}),
+                                     sphere((0.7, 0, -0.5), 0.5, {"type": "conductor"})), True),
+}
+
+
+@pytest.mark.parametrize("objects, capture", OPEN_SCENES.values(), ids=OPEN_SCENES.keys())
+def test_the_largest_max_depth_costs_only_the_generations_its_trees_reach(objects, capture,
+                                                                        monkeypatch):
+    """max_depth 2^31 - 1 against the least max_depth that lets every
+    generation reached do all its work (a hit of generation g spawns
+    children while g + 3 <= max_depth: the deepest generation reached, in
+    Mitsuba's count of path segments, plus its hit's shadow ray and the
+    children it did not have): the same bits, the same rays, and as few
+    calls deciding what a generation computes."""
+    calls = count_work(monkeypatch)
+    loaded = open_scene(*objects)
+    image, stats = render(loaded, capture, max_depth=LARGEST_DEPTH)
+    unbounded_calls = len(calls)
+    calls.clear()
+    reached = stats["generations"]
+    bounded, bounded_stats = render(loaded, capture, max_depth=reached + 2)
+    np.testing.assert_array_equal(image, bounded)
+    assert stats == bounded_stats
+    assert unbounded_calls == len(calls)
+    assert reached <= 8
+
+
+@pytest.mark.parametrize("emitters", [False, True], ids=["lamps only", "emitters to hit"])
+@pytest.mark.parametrize("components", [(), (0,), (0, 1)], ids=["0", "1", "2"])
+def test_spawning_generations_are_those_whose_work_spawns(emitters, components):
+    """The count the depth-first stack is sized by, against its definition:
+    the generations below max_depth whose ``work`` spawns, asked one by
+    one."""
+    needs = SceneNeeds(delta_components=components, smooth_surfaces=True,
+                       sampled_lights=[None] if emitters else [])
+    for depth in range(12):
+        shader = HitShader(None, needs, TreeSettings(depth, 1e-4, False), None)
+        expected = sum(1 for generation in range(depth) if shader.work(generation).spawn)
+        assert shader.spawning_generations() == expected, depth

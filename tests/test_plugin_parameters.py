@@ -164,6 +164,8 @@ CASES = [
     ("capped_cylinder", "radius", NAN, NAN, '<float name="radius" value="nan"/>'),
     ("capped_cylinder", "radius", lanes(2), [1, 2, 3], '<string name="radius" value="1"/>'),
     ("capped_cylinder", "height", 0.0, 0.0, '<float name="height" value="0"/>'),
+    ("capped_cylinder", "radius", 1e20, 1e30, '<float name="radius" value="1e30"/>'),
+    ("capped_cylinder", "height", 1e-25, 1e25, '<float name="height" value="1e25"/>'),
     ("capped_cylinder", "height", INF, INF, '<float name="height" value="inf"/>'),
     ("capped_cylinder", "segments", 2, 2, '<integer name="segments" value="2"/>'),
     ("capped_cylinder", "segments", 1 << 20, 6.5, '<float name="segments" value="6.5"/>'),
@@ -175,6 +177,7 @@ CASES = [
     ("tartan", "frequency", INF, INF, '<float name="frequency" value="inf"/>'),
     ("tartan", "frequency", NAN, NAN, '<float name="frequency" value="nan"/>'),
     ("tartan", "frequency", 0.0, "3", '<string name="frequency" value="3"/>'),
+    ("tartan", "frequency", 1e7, 1e30, '<float name="frequency" value="1e30"/>'),
     ("tartan", "color", [NAN, 0, 0], rgb(NAN, 0, 0), '<rgb name="color" value="nan, 0, 0"/>'),
     ("tartan", "color", [-1, 0.5, 0], rgb(-1, 0.5, 0), '<rgb name="color" value="-1, 0.5, 0"/>'),
     ("tartan", "color", lanes(2), "orange", '<string name="color" value="orange"/>'),
@@ -200,6 +203,8 @@ CASES = [
     ("planar_map", "z_min", 5.0, "-5", '<string name="z_min" value="-5"/>'),
     ("planar_map", "z_max", NAN, NAN, '<float name="z_max" value="nan"/>'),
     ("planar_map", "z_max", -2.0, -2.0, '<float name="z_max" value="-2"/>'),
+    ("planar_map", "x_max", -0.9999999, -0.9999999, '<float name="x_max" value="-0.9999999"/>'),
+    ("planar_map", "z_min", 0.9999999, None, None),
 ]
 
 XML_SCENE = """<scene version="3.0.0">
@@ -330,7 +335,7 @@ INTEGRATOR_CASES = [
     ("min_throughput", NAN, NAN, '<float name="min_throughput" value="nan"/>'),
     ("min_throughput", -1.0, INF, '<float name="min_throughput" value="inf"/>'),
     ("aa_samples", 0, 0, '<integer name="aa_samples" value="0"/>'),
-    ("aa_samples", 9, 9, '<string name="aa" value="grid"/><integer name="aa_samples" value="9"/>'),
+    ("aa_samples", -3, 1e10, '<float name="aa_samples" value="1e10"/>'),
     ("aa_threshold", -0.1, -0.1, '<float name="aa_threshold" value="-0.1"/>'),
     ("aa_threshold", INF, "0.5", '<vector name="aa_threshold" x="1" y="2" z="3"/>'),
     ("aa_max_depth", 17, 17, '<integer name="aa_max_depth" value="17"/>'),

@@ -10,7 +10,7 @@ import pytest
 
 from conftest import assert_finite
 from mitsuba_whitted.errors import ParameterError
-from mitsuba_whitted.integrators import render_plan
+from mitsuba_whitted.integrators import antialias, render_plan
 from mitsuba_whitted.integrators import whitted as whitted_module
 from mitsuba_whitted.integrators.render_plan import Demand, plan_render
 from validation.scenes import (camera, diffuse, floor, glass_scene, integrator, point_light, rgb,
@@ -142,10 +142,48 @@ def test_bands_are_sized_for_typical_refinement_and_cover_the_film():
     assert plan_render(Demand(600, 600, 64, 1 << 21, 0)).band_count == 1
 
 
-def test_a_grid_asking_past_the_budget_is_refused_at_load():
-    with pytest.raises(RuntimeError, match="whitted: parameter 'aa_samples' asks for 490000 "
-                       "samples per pixel .*'aa_budget'"):
-        mi.load_dict(integrator(aa="grid", aa_samples=700))
+def box_downsampled(image: np.ndarray, n: int) -> np.ndarray:
+    """Means of the n x n blocks of ``image``."""
+    height, width, channels = image.shape
+    return image.reshape(height // n, n, width // n, n, channels).mean(axis=(1, 3))
+
+
+@pytest.mark.parametrize("n, budget", [(12, 64.0), (9, 16.0), (5, 4.0)])
+def test_an_explicit_grid_past_the_budget_traces_every_sample_with_a_warning(
+        n, budget, monkeypatch):
+    """``aa_samples`` n past ``aa_budget``: the grid the user asked for,
+    n² samples in every pixel, and one warning. Oracle: the pixel centres of
+    a film n times finer in each direction lie where the grid's samples
+    do; their block means are the grid's pixels (to float rounding of the
+    sample positions)."""
+    warnings = []
+    monkeypatch.setattr(whitted_module, "_warn", warnings.append)
+    loaded = lit_scene(size=8)
+    image, whitted = render(loaded, aa="grid", aa_samples=n, aa_budget=budget)
+    assert_finite(image)
+    assert whitted.last_stats["aa_samples"] == 8 * 8 * n * n
+    assert len(warnings) == 1 and f"{n * n} camera samples per pixel" in warnings[0]
+    mi.render(loaded, integrator=whitted)
+    assert len(warnings) == 1, "the same grid warns once"
+    fine, _ = render(lit_scene(size=8 * n), aa="none")
+    np.testing.assert_allclose(image, box_downsampled(fine, n), atol=2e-3)
+
+
+def test_grid_keys_number_the_samples_modulo_2_to_the_32():
+    """A grid asked for explicitly may number more than 2^32 samples over
+    a film (10^4 x 10^4 pixels of 12 x 12): its keys wrap as UInt32 sums
+    do. Oracle: the same numbers in Python's integers."""
+    first_pixel, n = 5 * 10 ** 7, 12
+    _, keys, _ = antialias._grid_positions(10 ** 4, first_pixel, 3, n)
+    expected = (first_pixel * n * n + np.arange(3 * n * n)) % (1 << 32)
+    np.testing.assert_array_equal(keys.numpy(), expected)
+
+
+def test_a_grid_within_the_budget_renders_without_a_warning(monkeypatch):
+    warnings = []
+    monkeypatch.setattr(whitted_module, "_warn", warnings.append)
+    _, whitted = render(lit_scene(size=4), aa="grid", aa_samples=8)
+    assert whitted.last_stats["aa_samples"] == 4 * 4 * 64 and warnings == []
 
 
 def test_a_grid_within_a_raised_budget_renders_with_samples_traced_in_launches():

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from conftest import assert_finite
+from mitsuba_whitted.errors import ParameterError
 
 TEXTURES = Path(__file__).resolve().parent.parent / "textures"
 LEMONS = str(TEXTURES / "lemons.png")
@@ -488,6 +489,64 @@ def test_bad_parameters_raise_one_clear_error(props, message):
     props = {key: value() if callable(value) else value for key, value in props.items()}
     with pytest.raises(RuntimeError, match=message):
         mi.load_dict(props)
+
+
+PLANAR_XML = ('<texture version="3.0.0" type="planar_map">{}'
+              f'<texture type="bitmap" name="texture"><string name="filename" value="{LEMONS}"/>'
+              '</texture></texture>')
+
+
+def planar_bounds_xml(bounds: dict) -> str:
+    return PLANAR_XML.format("".join(f'<float name="{name}" value="{value!r}"/>'
+                                     for name, value in bounds.items()))
+
+
+#: Bounds whose span float32 cannot resolve where it lies: the report's,
+#: and spans below 1e-6 of their position (at least 1) elsewhere.
+UNRESOLVABLE_SPANS = [
+    {"x_min": -1e-30, "x_max": 1e-30},
+    {"z_min": 0.0, "z_max": 5e-7},
+    {"x_min": 1e6, "x_max": 1e6 + 0.5},
+    {"z_min": -3e8, "z_max": -3e8 + 256.0},
+]
+
+
+@pytest.mark.parametrize("bounds", UNRESOLVABLE_SPANS, ids=lambda b: "-".join(map(repr, b.values())))
+def test_planar_map_refuses_a_span_float32_cannot_resolve_where_it_lies(bounds):
+    axis = next(iter(bounds))[0]
+    with pytest.raises(RuntimeError) as refused:
+        mi.load_string(planar_bounds_xml(bounds))
+    sentence = str(refused.value).strip().splitlines()[-1]
+    assert sentence.startswith(f"ParameterError: planar_map: parameter '{axis}_max' must be "
+                               f"greater than {axis}_min by at least "), sentence
+
+
+@pytest.mark.parametrize("bounds", UNRESOLVABLE_SPANS, ids=lambda b: "-".join(map(repr, b.values())))
+def test_planar_map_refuses_such_a_span_in_an_update_and_keeps_its_bounds(bounds, uv_probe):
+    """Through ``mi.traverse``, the bounds written in any order: refused,
+    and the texture maps as before, read back with the old bounds."""
+    texture = mi.load_dict({"type": "planar_map", "texture": uv_probe, **BOUNDS})
+    p = np.random.default_rng(RNG_SEED).uniform([-6, -1, -10], [8, 1, 0], size=(64, 3))
+    before = probe_uv(texture, interaction(p))
+    params = mi.traverse(texture)
+    for name, value in bounds.items():
+        params[name] = value
+    with pytest.raises(ParameterError, match=f"planar_map: parameter '{next(iter(bounds))[0]}_m"):
+        params.update()
+    assert {name: params[name][0] for name in BOUNDS} == BOUNDS
+    np.testing.assert_array_equal(probe_uv(texture, interaction(p)), before)
+
+
+def test_planar_map_maps_a_span_just_above_its_resolution_as_float64_does(uv_probe):
+    """Far from the origin, a span of 2^-22 of its position (four times the
+    least): uv as the formula gives them in float64 from the same float32
+    points, to the rounding of one subtraction there."""
+    bounds = {"x_min": 1e6, "x_max": 1e6 + 4.0, "z_min": -1.0, "z_max": 1.0}
+    texture = mi.load_dict({"type": "planar_map", "texture": uv_probe, **bounds})
+    x = np.float32(1e6) + np.arange(0, 4.25, 0.25, dtype=np.float32)
+    p = np.c_[x, np.zeros_like(x), np.zeros_like(x)]
+    uv = probe_uv(texture, interaction(p))
+    np.testing.assert_allclose(uv[:, 0], planar_uv_reference(p, bounds)[:, 0], atol=1e-6)
 
 
 def test_bad_parameter_from_xml_names_plugin_and_parameter():

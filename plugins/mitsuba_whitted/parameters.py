@@ -19,6 +19,20 @@ from .errors import ParameterError, check
 from .mathutil import invert_affine_f64
 
 
+#: Float32's resolution (NumPy's ``finfo(float32).resolution``): the
+#: smallest length, relative to the position it lies at, that the plugins
+#: tell apart there.
+FLOAT32_RESOLUTION = 1e-6
+
+
+def resolution_at(*positions: float) -> float:
+    """The smallest length float32 resolves at ``positions``: its
+    resolution times their largest magnitude, taken at least 1 (surface
+    points carry the rounding of the scene's unit of length, as Mitsuba's
+    ray offsets take it)."""
+    return FLOAT32_RESOLUTION * max([1.0, *(abs(p) for p in positions)])
+
+
 def describe(value) -> str:
     """``value`` as a user wrote it: text quoted, numbers as numbers, other
     objects by their type (their own text may span many lines)."""

@@ -154,7 +154,9 @@ def _grid_positions(width: int, first_pixel: int, pixels: int, n: int, lens: boo
     sub = index % (n * n)
     x = mi.Float(pixel % width) + (mi.Float(sub % n) + 0.5) / n
     y = mi.Float(pixel // width) + (mi.Float(sub // n) + 0.5) / n
-    keys = index + dr.opaque(mi.UInt32, first_pixel * n * n)
+    # Modulo 2^32, as UInt32 sums wrap: a grid asked for explicitly may
+    # number more samples than that over the film, and keys only seed hashes.
+    keys = index + dr.opaque(mi.UInt32, first_pixel * n * n % (1 << 32))
     if not lens:
         return mi.Point2f(x, y), keys, None
     seed = lens_points.pixel_seed(pixel)

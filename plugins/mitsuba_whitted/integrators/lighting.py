@@ -247,7 +247,11 @@ class DirectLighting:
         could add light)."""
         lit = active & (ds.pdf > 0) & dr.any(contribution > 0)
         passed, marched = self.shadows.transmittance(si, ds.p, lit, slot)
-        return contribution * passed, ShadowRays(mi.UInt32(lit), marched)
+        # A select, not the product with a transmittance of 0: lanes that
+        # are not lit may hold Inf or NaN. A miss's interaction lies at the
+        # origin, and a light there is at distance 0 from it (1/0^2).
+        return (dr.select(lit, contribution * passed, 0),
+                ShadowRays(mi.UInt32(lit), marched))
 
     def _sample_points(self, key: mi.UInt32, index: int):
         """Where the shadow rays of ray ``key`` sample the ``index``-th of

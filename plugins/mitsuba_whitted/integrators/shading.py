@@ -92,9 +92,16 @@ class HitShader(ReadsScene):
 
     def spawning_generations(self) -> int:
         """How many generations (0, 1, ...) can have children: the ones
-        whose ``work`` may spawn."""
-        return sum(1 for generation in range(self.settings.max_depth)
-                   if self.work(generation).spawn)
+        whose ``work`` may spawn, counted from its conditions rather than
+        by asking each generation, so that a ``max_depth`` of 2^31 - 1 costs
+        no more than the rays its trees hold."""
+        if self.fan_out == 0:
+            return 0
+        # The last generation that spawns: its children must still see
+        # emission (g + 2 <= depth) or, without emitters to hit, shade
+        # (g + 3 <= depth).
+        last = self.settings.max_depth - (2 if self.needs.hittable_emitters else 3)
+        return max(last + 1, 0)
 
     def work(self, generation) -> HitWork:
         """What a hit of ``generation`` computes (an int, or per lane)."""

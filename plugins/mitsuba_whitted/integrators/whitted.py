@@ -45,7 +45,9 @@ def _given(props: mi.Properties, name: str, default):
 def _whole(default: int):
     def read(props: mi.Properties, name: str) -> int:
         value = checked_numbers(_given(props, name, default), PLUGIN_NAME, name)[0]
-        check(value == int(value), PLUGIN_NAME, name, f"must be a whole number (got {value:g})")
+        # ``mi.traverse`` hands the whole settings out as 32-bit integers.
+        check(value == int(value) and -2 ** 31 <= value < 2 ** 31, PLUGIN_NAME, name,
+              f"must be a whole number from -2^31 to 2^31 - 1 (got {value:g})")
         return int(value)
     return read
 
@@ -166,9 +168,10 @@ class WhittedIntegrator(mi.SamplingIntegrator):
          high, after Mitchell 1987). (Default: none)
      * - aa_samples
        - |int|
-       - Grid: samples per pixel side (``aa_samples``\ :sup:`2` may not pass
-         ``aa_budget``). Contrast: a refined pixel takes
-         ``aa_samples``\ :sup:`2` points. (Default: 2)
+       - Grid: samples per pixel side, all of them traced (past
+         ``aa_budget``, with a warning that the render takes that much
+         longer). Contrast: a refined pixel takes ``aa_samples``\ :sup:`2`
+         points. (Default: 2)
      * - aa_threshold
        - |float|
        - Adaptive: a quadrant is split when its colour (clamped to [0, 1])
@@ -182,11 +185,12 @@ class WhittedIntegrator(mi.SamplingIntegrator):
          0 to 16. (Default: 3)
      * - aa_budget
        - |float|
-       - Most camera samples per pixel, on average over the image (over a
-         band of it, for films cut into bands). A grid may not ask for
-         more; adaptive refinement stops with a warning where a level would
-         pass it; contrast refinement takes fewer points per pixel, with a
-         warning. (Default: 64)
+       - Most camera samples per pixel that the refinements choose to
+         take, on average over the image (over a band of it, for films cut
+         into bands): adaptive refinement stops with a warning where a level
+         would pass it; contrast refinement takes fewer points per pixel,
+         with a warning. A grid, whose count is asked for explicitly, takes
+         it whole, with a warning past this. (Default: 64)
      * - wavefront_size
        - |int|
        - Most rays of one generation in the wavefront tracer; the stack
@@ -349,12 +353,6 @@ class WhittedIntegrator(mi.SamplingIntegrator):
               f"must be between 0 and {AA_DEPTH_LIMIT} (got {v['aa_max_depth']})")
         check(v["aa_budget"] >= 4, PLUGIN_NAME, "aa_budget",
               f"must be >= 4 samples per pixel (got {v['aa_budget']:g})")
-        if self.aa == "grid":
-            samples = v["aa_samples"] ** 2
-            check(samples <= v["aa_budget"], PLUGIN_NAME, "aa_samples",
-                  f"asks for {samples} samples per pixel ({v['aa_samples']} x "
-                  f"{v['aa_samples']}), more than 'aa_budget' allows ({v['aa_budget']:g}); "
-                  "lower 'aa_samples' or raise 'aa_budget'")
         check(v["wavefront_size"] >= 1024, PLUGIN_NAME, "wavefront_size",
               f"must be >= 1024 (got {v['wavefront_size']})")
         check(all(c >= 0 for c in v["ambient"]), PLUGIN_NAME, "ambient",
@@ -536,6 +534,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
                             "of the thin lens's aperture, so the image has no depth of field; "
                             "use 'grid', 'adaptive' or 'contrast'.")
         self._note_indirect_model()
+        self._note_long_grid()
         _settle_sampler(sensor)
         tracer = self._tracer_for(scene, seed)
         plan = plan_render(self._demand(sensor.film(), tracer, film_entries, held_bytes))
@@ -608,6 +607,17 @@ class WhittedIntegrator(mi.SamplingIntegrator):
                 f"whitted: with indirect_samples > 0, {' and '.join(doubled)} add light that "
                 "the indirect paths gather as well; set 'ambient' to 0 and 'shadows' to "
                 "'physical' for an image that converges to the path tracer's."))
+
+    def _note_long_grid(self) -> None:
+        """A grid traces every sample it asks for, past ``aa_budget`` too
+        (what does not fit in memory goes in bands, what Dr.Jit cannot hold
+        is refused by the plan): say that the render takes longer."""
+        samples = self.aa_samples ** 2
+        if self.aa == "grid" and samples > self.aa_budget:
+            self._note_once(f"grid of {samples}", (
+                f"whitted: aa='grid' with aa_samples={self.aa_samples} traces {samples} camera "
+                f"samples per pixel, {samples / self.aa_budget:.3g} times 'aa_budget' "
+                f"({self.aa_budget:g}): the render takes about that much longer."))
 
     def _note_sample_count(self, spp: int) -> None:
         """``mi.render(..., spp=N)``: whitted places its own camera samples

@@ -5,7 +5,7 @@ from __future__ import annotations
 import mitsuba as mi
 import numpy as np
 
-from ..errors import check
+from ..errors import ParameterError, check
 from ..jit import device_array
 from ..parameters import LastValid, checked_numbers, checked_transform
 from .analytic import analytic
@@ -26,6 +26,16 @@ SHAPE_KEYS = ("center", "radius", "height", "segments")
 #: resolution of r (6e-8 r): more sides cannot change a float32 render, and
 #: only cost memory.
 MAX_SEGMENTS = 1 << 16
+
+#: Longest and shortest edges of the proxy's triangles in the world.
+#: Mitsuba's float32 ray test (Embree's) multiplies two edges (the
+#: triangle's normal) and the ray's distance to its plane: past float32's
+#: range (3.4e38) or below its normal numbers (1.2e-38) it overflows or
+#: flushes to zero, and the cylinder silently vanishes (measured: radius
+#: 3e18 seen from 5 units away). The bounds leave a factor 2^12 for the
+#: ray's distance, so rays from up to 4096 units away hit.
+MAX_LENGTH = float(np.sqrt(np.finfo(np.float32).max / 2.0 ** 12))
+MIN_LENGTH = float(np.sqrt(np.finfo(np.float32).tiny * 2.0 ** 12))
 
 
 def _translate(offset) -> np.ndarray:
@@ -103,7 +113,9 @@ class CappedCylinder(mi.Mesh):
        - Centre of the bottom cap, finite (default: (0, 0, 0))
      * - radius
        - |float|
-       - Radius, finite and > 0 (default: 1)
+       - Radius, finite and > 0; placed in the world, the proxy's triangles
+         must be 7e-18 to 2.9e17 long, what Mitsuba's float32 ray test can
+         hit (default: 1)
      * - height
        - |float|
        - Height along the axis, finite and > 0 (default: 1)
@@ -196,6 +208,7 @@ class CappedCylinder(mi.Mesh):
         to_world = self.canonical_to_world_matrix()
         linear = to_world[:3, :3]
         positions = positions @ linear.T + to_world[:3, 3]
+        self._check_lengths(positions, faces)
         # Normals take the inverse transpose: n_world = W^T n.
         normals = normals @ self.world_to_canonical_matrix()[:3, :3]
         normals /= np.linalg.norm(normals, axis=1, keepdims=True)
@@ -208,6 +221,25 @@ class CappedCylinder(mi.Mesh):
         params["vertex_texcoords"] = device_array(mi.Float, uv)
         params["faces"] = device_array(mi.UInt32, faces)
         params.update()
+
+    def _check_lengths(self, positions: np.ndarray, faces: np.ndarray) -> None:
+        """Refuse a placement whose triangles Mitsuba's ray test cannot hit
+        in float32 (``MAX_LENGTH``), naming the radius or height that is out
+        of range, else the placement that scaled them."""
+        corners = positions[faces]
+        lengths = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2)
+        own = {"radius": self.radius, "height": self.height}
+        for length, large in ((lengths.max(), True), (lengths.min(), False)):
+            if MIN_LENGTH <= length <= MAX_LENGTH:
+                continue
+            name = (max if large else min)(own, key=own.get)
+            if (own[name] <= 1) if large else (own[name] >= 1):
+                name = "to_world"
+            raise ParameterError(
+                PLUGIN_NAME, name,
+                f"makes the cylinder's triangles {length:.3g} long in the world, and Mitsuba's "
+                f"float32 ray test, which multiplies two of their edges, hits only triangles "
+                f"{MIN_LENGTH:.2g} to {MAX_LENGTH:.2g} long")
 
     def traverse(self, callback) -> None:
         super().traverse(callback)

@@ -7,7 +7,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..errors import check
-from ..parameters import LastValid, checked_numbers
+from ..parameters import LastValid, checked_numbers, resolution_at
 from .common import nested_texture, uv_remap_base
 
 PLUGIN_NAME = "planar_map"
@@ -32,8 +32,9 @@ class PlanarMap(uv_remap_base()):
 
      * - x_min, x_max
        - |float|
-       - World x range the image spans once: finite, x_max > x_min, and a
-         span float32 can divide by. (Default: -1, 1)
+       - World x range the image spans once: finite, with x_max above x_min
+         by at least float32's resolution there, 1e-6 of the bounds'
+         magnitude (taken at least 1). (Default: -1, 1)
        - |exposed|, |differentiable|
 
      * - z_min, z_max
@@ -112,18 +113,23 @@ class PlanarMap(uv_remap_base()):
 
 
 def _check_span(bounds: dict, axis: str, keys) -> None:
-    """``{axis}_max > {axis}_min`` by a span float32 can hold and divide by
-    (the uv formula divides by it). The error names the bound that was just
-    changed: the maximum, unless only the minimum was."""
+    """``{axis}_max > {axis}_min`` by a span float32 can hold and resolves
+    where it lies. A span below the resolution of the surface points it
+    maps puts a whole image, or millions of them, between two neighbouring
+    points: the uv become noise, and past 2^31 texels the nested bitmap's
+    integer lookup wraps into values like -1e8 (measured at u = 5e6). The error names the bound
+    that was just changed: the maximum, unless only the minimum was."""
     low, high = f"{axis}_min", f"{axis}_max"
     name, problem = ((low, f"must be less than {high}") if low in keys and high not in keys
                      else (high, f"must be greater than {low}"))
     got = f"(got {low}={bounds[low]:g}, {high}={bounds[high]:g})"
-    span = np.float32(bounds[high]) - np.float32(bounds[low])
-    check(span > 0, PLUGIN_NAME, name, f"{problem} {got}")
-    with np.errstate(divide="ignore", over="ignore"):
-        usable = np.isfinite(span) and np.isfinite(np.float32(1) / span)
-    check(usable, PLUGIN_NAME, name, f"{problem} by a span float32 can hold and divide by {got}")
+    with np.errstate(over="ignore"):
+        span = np.float32(bounds[high]) - np.float32(bounds[low])  # as the kernel subtracts
+    check(np.isfinite(span), PLUGIN_NAME, name, f"{problem} by a span float32 can hold {got}")
+    least = resolution_at(bounds[low], bounds[high])
+    check(span >= least, PLUGIN_NAME, name,
+          f"{problem} by at least {least:g}, the finest span float32 resolves at that position "
+          f"{got}")
 
 
 mi.register_texture(PLUGIN_NAME, lambda props: PlanarMap(props))

@@ -9,7 +9,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..errors import check
-from ..parameters import LastValid, checked_numbers
+from ..parameters import LastValid, checked_numbers, resolution_at
 from .common import HiddenParameter, apply_rows, inverse_rows, read_to_world
 
 PLUGIN_NAME = "tartan"
@@ -31,7 +31,8 @@ class Tartan(mi.Texture):
      * - frequency
        - |float|
        - Angular frequency f of the squares, in radians per unit of texture
-         space; must be > 0. It only moves the squares' edges, where the
+         space; must be > 0, and at most pi x 10^6, for squares float32
+         resolves (1e-6 across). It only moves the squares' edges, where the
          colour jumps: like a silhouette, not differentiated. (Default: 3)
        - |exposed|
 
@@ -97,7 +98,13 @@ class Tartan(mi.Texture):
 
     def parameters_changed(self, keys=()):
         with self._last_valid.updating(self):
-            checked_numbers(self.frequency, PLUGIN_NAME, "frequency", greater_than=0)
+            frequency = checked_numbers(self.frequency, PLUGIN_NAME, "frequency",
+                                        greater_than=0)[0]
+            # Squares finer than float32 resolves would be noise.
+            finest = math.pi / resolution_at()
+            check(frequency <= finest, PLUGIN_NAME, "frequency",
+                  f"must be at most {finest:g}, for squares (pi / frequency across) that "
+                  f"float32 resolves (got {frequency:g})")
             checked_numbers(self.color, PLUGIN_NAME, "color", size=3, at_least=0)
             self.to_local = inverse_rows(self._to_world.value, PLUGIN_NAME)
             # Opaque: a new value must not bake a new constant into every kernel.
