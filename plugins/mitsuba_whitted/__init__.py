@@ -17,7 +17,9 @@ variant, and again after each ``mi.set_variant``, whichever comes first::
     scene = mi.load_file("scenes/cosc363.xml")
     image = mi.render(scene)
 
-A usable libLLVM is chosen before Dr.Jit loads one (see :mod:`.llvm`).
+A usable libLLVM is chosen before Dr.Jit loads one (see :mod:`.llvm`), and
+``mi.render`` raises the plugins' errors and Ctrl-C as they were raised
+(see :mod:`.checked_render`).
 """
 
 from __future__ import annotations
@@ -52,6 +54,8 @@ DEFAULT_VARIANT = "llvm_ad_rgb"
 llvm.configure()
 
 import mitsuba as mi  # noqa: E402  (after the libLLVM choice)
+
+from .checked_render import checked  # noqa: E402
 
 
 def _register_plugins(variant: str | None) -> None:
@@ -116,4 +120,5 @@ def load_file(path: str, **defines):
 
 
 mi.detail.add_variant_callback(_on_variant_change)
+mi.render = checked(mi.render)
 _register_plugins(mi.variant())
