@@ -22,6 +22,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
+from mitsuba_whitted.compare.scene_report import FOLDER_MARK
 from mitsuba_whitted.integrators.frozen import FrozenKernel
 from validation.scenes import REPORT_SCENE, ROOT
 
@@ -189,10 +190,12 @@ def test_ctrl_c_stops_compare(tmp_path):
                                          "--quick", "-D", "res=128", "--out", str(out)])
     assert_stopped(code, seconds, output)
     assert output.count("\n") == 1, output
-    # A reference finished before the signal is a whole cache entry.
-    for path in (p for p in out.rglob("*") if p.is_file()):
+    # A reference finished before the signal is a whole cache entry; the
+    # folder's mark lets the next compare write there.
+    for path in (p for p in out.rglob("*") if p.is_file() and p.parent != out):
         assert path.parent.name == "cache" and not path.name.startswith("."), path
         np.load(path)["image"]
+    assert [p.name for p in out.iterdir() if p.is_file()] == [FOLDER_MARK]
 
 
 def test_ctrl_c_stops_bench(tmp_path):

@@ -56,6 +56,7 @@ llvm.configure()
 import mitsuba as mi  # noqa: E402  (after the libLLVM choice)
 
 from .checked_render import checked  # noqa: E402
+from .scene_files import check_films, parse  # noqa: E402
 
 
 def _register_plugins(variant: str | None) -> None:
@@ -115,7 +116,9 @@ def load_file(path: str, **defines):
     merging of shapes that share a BSDF into one mesh orders them
     differently from run to run (a cube of six rectangles did); both are
     off here. Ray counts and render times of ``scenes/cosc363.xml`` are the
-    same either way."""
+    same either way. A film without pixels is refused by name
+    (:func:`.scene_files.check_films`)."""
+    check_films(parse(path, defines))
     return mi.load_file(str(path), parallel=False, optimize=False, **defines)
 
 

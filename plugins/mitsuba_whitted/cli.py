@@ -22,6 +22,7 @@ from . import files
 from .errors import UsageError, caused_by, one_sentence
 from .interrupt import InterruptGuard, interrupted_line
 from .progress import Progress
+from .scene_files import check_not_read
 
 
 def _parse_defines(pairs: list[str]) -> dict:
@@ -48,8 +49,10 @@ def command_render(args) -> int:
 
     check_image_path(args.output)
     mitsuba_whitted.set_variant(args.variant)
+    defines = _parse_defines(args.define)
+    check_not_read([args.output], args.scene, defines)
     started = time.perf_counter()
-    scene = _load_scene(args.scene, _parse_defines(args.define))
+    scene = _load_scene(args.scene, defines)
     loaded = time.perf_counter()
     integrator = scene.integrator()
     if not scene.sensors():
@@ -110,11 +113,12 @@ def command_compare(args) -> int:
     from pathlib import Path
 
     import mitsuba_whitted
-    from .compare import CompareOptions, Estimate, compare_scene, estimate_text
+    from .compare import (CompareOptions, Estimate, check_report_folder, compare_scene,
+                          estimate_text)
     from .distributed import backend
 
     options = CompareOptions.make(args.quick, args.reference_spp)
-    out = files.check_folder(args.out or f"compare-{Path(args.scene).stem}")
+    out = check_report_folder(args.out or f"compare-{Path(args.scene).stem}")
     mitsuba_whitted.set_variant(args.variant)
     with backend(args.workers, args.cluster) as runner:
         result = compare_scene(args.scene, out, options, _parse_defines(args.define),
@@ -156,6 +160,8 @@ def command_bench(args) -> int:
     mitsuba_whitted.set_variant(args.variant)
     scene = files.check_readable(args.scene or bench.DEFAULT_SCENE)
     defines = _parse_defines(args.define)
+    if args.json:
+        check_not_read([args.json], scene, defines)
     settings = (bench.BenchSettings.quick(scene, defines) if args.quick
                 else bench.BenchSettings(scene, defines))
     results = bench.run(settings, report=lambda line: print(line, file=sys.stderr))
