@@ -362,7 +362,7 @@ def test_python_warnings_of_a_command_are_plain_lines(capsys):
     assert capsys.readouterr().err == "warning: a deprecated option\n"
 
 
-# ------------------------------------------------------------------- films
+# ----------------------------------------------- films, streams and pipes
 
 @pytest.mark.parametrize("side, value", [("width", 0), ("height", -3)])
 def test_a_film_without_pixels_is_refused_by_its_own_name(tmp_path, side, value):
@@ -375,6 +375,61 @@ def test_a_film_without_pixels_is_refused_by_its_own_name(tmp_path, side, value)
     assert_one_sentence(result, f"hdrfilm: parameter '{side}' must be at least 1 "
                                 f"(got {value}), at {scene} (line 4, col ")
     assert "field of view" not in result.stderr
+
+
+def small_render(target, **options):
+    """``mitsuba-whitted render`` of a small image, in a process whose
+    streams ``options`` set as for ``subprocess.run``."""
+    return subprocess.run([sys.executable, "-m", "mitsuba_whitted.cli", "render",
+                           str(REPORT_SCENE), "-D", "res=16", "-D", "aa=none", "-o", str(target)],
+                          cwd=ROOT, timeout=300, **options)
+
+
+def close_descriptors(*descriptors):
+    def close():
+        for descriptor in descriptors:
+            os.close(descriptor)
+    return close
+
+
+@pytest.mark.parametrize("closed", [(2,), (1, 2), (0, 1, 2)], ids=["2", "1-2", "0-1-2"])
+def test_a_command_started_without_its_streams_renders_as_usual(tmp_path, closed):
+    """``2>&-``: Python has no sys.stderr, and every render failed with an
+    AttributeError, printed on stdout."""
+    target = tmp_path / "x.png"
+    result = small_render(target, stdout=subprocess.PIPE, text=True,
+                          preexec_fn=close_descriptors(*closed))
+    assert result.returncode == 0
+    expected = "" if 1 in closed else f"{target}: 16x16 rendered and written in "
+    assert result.stdout.startswith(expected)
+    assert read_image(target).shape == (16, 16, 3)
+    assert list(tmp_path.iterdir()) == [target]
+
+
+def test_an_error_without_stderr_leaves_stdout_empty(tmp_path):
+    result = small_render(tmp_path / "x.gif", stdout=subprocess.PIPE, text=True,
+                          preexec_fn=close_descriptors(2))
+    assert (result.returncode, result.stdout) == (2, "")
+
+
+@pytest.mark.parametrize("suffix", [".png", ".exr"])
+@pytest.mark.parametrize("streams", ["stdout", "stdout-and-stderr"])
+def test_output_into_a_pipe_nobody_reads_ends_quietly_with_141(tmp_path, streams, suffix):
+    """``render ... | head -c1``: the reader is gone when the summary line
+    comes. As a command that SIGPIPE ends: exit code 141, nothing said; the
+    image is written whole, as it was done before."""
+    reader, writer = os.pipe()
+    os.close(reader)
+    target = tmp_path / f"x{suffix}"
+    try:
+        result = small_render(target, stdout=writer, text=True,
+                              stderr=writer if streams == "stdout-and-stderr" else subprocess.PIPE)
+    finally:
+        os.close(writer)
+    assert result.returncode == 141
+    assert not result.stderr
+    assert read_image(target).shape[:2] == (16, 16)
+    assert list(tmp_path.iterdir()) == [target]
 
 
 # ------------------------------------------ outputs that the scene reads

@@ -27,9 +27,10 @@ from __future__ import annotations
 import importlib
 import sys
 
-from . import interrupt
+from . import interrupt, system
 
 if interrupt.started_as("mitsuba_whitted.cli", "mitsuba-whitted"):
+    system.open_standard_streams()
     interrupt.end_quietly_on_ctrl_c("mitsuba-whitted")
 
 from . import llvm  # noqa: E402  (after Ctrl-C is handled)
