@@ -13,6 +13,7 @@ import pytest
 
 from conftest import SRGB_TO_XYZ, cli, one_line
 from mitsuba_whitted.cli import main, run_command
+from mitsuba_whitted.compare.scene_report import FOLDER_MARK
 from mitsuba_whitted.imageio import read_image, to_8bit, write_image
 from validation.scenes import REPORT_SCENE, ROOT
 
@@ -359,3 +360,128 @@ def test_python_warnings_of_a_command_are_plain_lines(capsys):
 
     assert run_command(lambda: warnings.warn("a deprecated option") or 0) == 0
     assert capsys.readouterr().err == "warning: a deprecated option\n"
+
+
+# ----------------------------------------------- films, streams and pipes
+
+@pytest.mark.parametrize("side, value", [("width", 0), ("height", -3)])
+def test_a_film_without_pixels_is_refused_by_its_own_name(tmp_path, side, value):
+    """Mitsuba's camera divides by the film's size first, and blamed its
+    field of view."""
+    scene = tmp_path / "scene.xml"
+    scene.write_text(HOSTILE.format(body="").replace(
+        f'<integer name="{side}" value="8"/>', f'<integer name="{side}" value="{value}"/>'))
+    result = cli("render", str(scene), "-o", str(tmp_path / "x.png"))
+    assert_one_sentence(result, f"hdrfilm: parameter '{side}' must be at least 1 "
+                                f"(got {value}), at {scene} (line 4, col ")
+    assert "field of view" not in result.stderr
+
+
+def small_render(target, **options):
+    """``mitsuba-whitted render`` of a small image, in a process whose
+    streams ``options`` set as for ``subprocess.run``."""
+    return subprocess.run([sys.executable, "-m", "mitsuba_whitted.cli", "render",
+                           str(REPORT_SCENE), "-D", "res=16", "-D", "aa=none", "-o", str(target)],
+                          cwd=ROOT, timeout=300, **options)
+
+
+def close_descriptors(*descriptors):
+    def close():
+        for descriptor in descriptors:
+            os.close(descriptor)
+    return close
+
+
+@pytest.mark.parametrize("closed", [(2,), (1, 2), (0, 1, 2)], ids=["2", "1-2", "0-1-2"])
+def test_a_command_started_without_its_streams_renders_as_usual(tmp_path, closed):
+    """``2>&-``: Python has no sys.stderr, and every render failed with an
+    AttributeError, printed on stdout."""
+    target = tmp_path / "x.png"
+    result = small_render(target, stdout=subprocess.PIPE, text=True,
+                          preexec_fn=close_descriptors(*closed))
+    assert result.returncode == 0
+    expected = "" if 1 in closed else f"{target}: 16x16 rendered and written in "
+    assert result.stdout.startswith(expected)
+    assert read_image(target).shape == (16, 16, 3)
+    assert list(tmp_path.iterdir()) == [target]
+
+
+def test_an_error_without_stderr_leaves_stdout_empty(tmp_path):
+    result = small_render(tmp_path / "x.gif", stdout=subprocess.PIPE, text=True,
+                          preexec_fn=close_descriptors(2))
+    assert (result.returncode, result.stdout) == (2, "")
+
+
+@pytest.mark.parametrize("suffix", [".png", ".exr"])
+@pytest.mark.parametrize("streams", ["stdout", "stdout-and-stderr"])
+def test_output_into_a_pipe_nobody_reads_ends_quietly_with_141(tmp_path, streams, suffix):
+    """``render ... | head -c1``: the reader is gone when the summary line
+    comes. As a command that SIGPIPE ends: exit code 141, nothing said; the
+    image is written whole, as it was done before."""
+    reader, writer = os.pipe()
+    os.close(reader)
+    target = tmp_path / f"x{suffix}"
+    try:
+        result = small_render(target, stdout=writer, text=True,
+                              stderr=writer if streams == "stdout-and-stderr" else subprocess.PIPE)
+    finally:
+        os.close(writer)
+    assert result.returncode == 141
+    assert not result.stderr
+    assert read_image(target).shape[:2] == (16, 16)
+    assert list(tmp_path.iterdir()) == [target]
+
+
+# ------------------------------------------ outputs that the scene reads
+
+def textured_scenes(folder):
+    """``scene.xml`` reads ``wall.png`` (a default, which a define may
+    change) and includes ``parts/ball.xml``, which reads ``parts/ball.exr``;
+    ``other.xml`` reads ``scene.png``."""
+    image = np.linspace(0, 1, 4 * 4 * 3, dtype=np.float32).reshape(4, 4, 3)
+    (folder / "parts").mkdir()
+    for name in ("wall.png", "parts/ball.exr", "scene.png", "spare.png"):
+        write_image(folder / name, image)
+
+    def textured(name):
+        return ('<bsdf type="diffuse"><texture type="bitmap" name="reflectance">'
+                f'<string name="filename" value="{name}"/></texture></bsdf>')
+
+    (folder / "parts" / "ball.xml").write_text(
+        f'<scene version="3.0.0"><shape type="sphere">{textured("parts/ball.exr")}</shape></scene>')
+    body = (f'<default name="wall" value="wall.png"/><shape type="rectangle">{textured("$wall")}'
+            '</shape><include filename="parts/ball.xml"/>')
+    (folder / "scene.xml").write_text(HOSTILE.format(body=body))
+    (folder / "other.xml").write_text(HOSTILE.format(
+        body=f'<shape type="rectangle">{textured("scene.png")}</shape>'))
+    return {name: (folder / name).read_bytes() for name in
+            ("wall.png", "parts/ball.exr", "scene.png", "spare.png", "scene.xml",
+             "parts/ball.xml")}
+
+
+@pytest.mark.parametrize("case", ["texture", "link", "define", "include", "render-many",
+                                  "compare", "bench"])
+def test_no_command_writes_over_a_file_the_scene_reads(tmp_path, case):
+    before = textured_scenes(tmp_path)
+    scene = str(tmp_path / "scene.xml")
+    (tmp_path / "link.png").symlink_to(tmp_path / "wall.png")
+    (tmp_path / "parts" / FOLDER_MARK).write_text("")  # as if an earlier compare wrote there
+    args, output, read = {
+        "texture": (["render", scene, "-o", "{}/wall.png"], "wall.png", "it"),
+        "link": (["render", scene, "-o", "{}/link.png"], "link.png", "it"),
+        "define": (["render", scene, "-D", "wall=spare.png", "-o", "{}/spare.png"], "spare.png",
+                   "it"),
+        "include": (["render", scene, "-o", "{}/parts/ball.exr"], "parts/ball.exr", "it"),
+        "render-many": (["render-many", str(tmp_path / "other.xml"), scene, "--out", "{}",
+                         "--format", "png"], "scene.png", "it"),
+        "compare": (["compare", "--quick", scene, "--out", "{}/parts"], "parts",
+                    "'{}/parts/ball.exr' in it"),
+        "bench": (["bench", "--quick", scene, "--json", "{}/parts/ball.xml"],
+                  "parts/ball.xml", "it"),
+    }[case]
+    result = cli(*[arg.format(tmp_path) for arg in args])
+    reader = "other.xml" if case == "render-many" else "scene.xml"
+    assert_one_sentence(result, f"cannot write '{tmp_path / output}': scene "
+                                f"'{tmp_path / reader}' reads {read.format(tmp_path)}; "
+                                "choose another output.")
+    assert {name: (tmp_path / name).read_bytes() for name in before} == before

@@ -21,6 +21,8 @@ from mitsuba_whitted.compare.levels import error_levels
 from mitsuba_whitted.compare.reference import render_reference
 from mitsuba_whitted.compare.sweep import indirect_change
 from mitsuba_whitted.compare.report import number
+from mitsuba_whitted.compare.scene_report import (FOLDER_MARK, CompareError, CompareOptions,
+                                                  check_report_folder, compare_scene)
 from mitsuba_whitted.imageio import read_image
 
 from conftest import assert_finite, cli, one_line
@@ -124,6 +126,26 @@ def test_second_reference_comes_from_the_cache(tmp_path):
     # The spread of the passes is a real noise estimate: the sky seen past
     # the sphere is noiseless, the diffuse sphere under it is not.
     assert first.variance[0, 0].max() == 0 and first.variance[12, 12].min() > 0
+
+
+@pytest.mark.parametrize("cut", [
+    lambda data: b"", lambda data: data[:len(data) // 2], lambda data: data[:-1],
+    lambda data: b"not an archive\n" * 8,
+], ids=["empty", "half", "last-byte-cut", "other-file"])
+def test_an_unreadable_cache_entry_is_computed_again(tmp_path, cut):
+    """An entry cut short (a disk that failed, a copy stopped midway) or
+    replaced by another file is missing, with a warning, and its new value
+    replaces it."""
+    cache = ReferenceCache(tmp_path)
+    cache.store("key", {"image": np.arange(48.0)})
+    path = cache.path("key")
+    path.write_bytes(cut(path.read_bytes()))
+    with pytest.warns(UserWarning, match=re.escape(f"the cache entry '{path}' cannot be read")):
+        arrays = cache.get_or_compute("key", lambda: {"image": np.ones(3)})
+    np.testing.assert_array_equal(arrays["image"], np.ones(3))
+    assert (cache.misses, cache.hits) == (1, 0)
+    np.testing.assert_array_equal(cache.get_or_compute("key", None)["image"], np.ones(3))
+    assert cache.hits == 1
 
 
 def test_converged_renders_are_shared_by_a_model_and_cached(tmp_path):
@@ -230,6 +252,9 @@ def test_compare_quick_writes_a_consistent_report(tmp_path):
         assert entry["goal"] in ("met", "missed", "undecided", "not measured")
     share = results["missing_energy_share"]
     assert 0 < share < 1 and f"{100 * share:.1f}%" in report
+    # Marked as a comparison's folder, which the next comparison may rewrite.
+    assert (tmp_path / FOLDER_MARK).is_file()
+    assert check_report_folder(tmp_path) == tmp_path
 
 
 # -------------------------------------------------------------- bad input
@@ -255,8 +280,40 @@ def test_bad_input_to_compare_is_one_sentence(tmp_path, body, message):
     assert message in one_line(result.stderr)
 
 
-def test_too_few_reference_samples_is_one_sentence(tmp_path):
-    result = cli("compare", str(REPORT_SCENE), "--reference-spp", "4", "--out", str(tmp_path),
+@pytest.mark.parametrize("spp", ["4", "-1", str(2**32), str(2**40)])
+def test_a_reference_sample_count_out_of_range_is_one_sentence(tmp_path, spp):
+    """Fewer samples than passes, or more than ``mi.render``'s 32-bit count."""
+    result = cli("compare", str(REPORT_SCENE), "--reference-spp", spp, "--out", str(tmp_path),
                  timeout=300)
     assert result.returncode == 2
-    assert "--reference-spp must be at least 16 (got 4)" in one_line(result.stderr)
+    assert f"--reference-spp must be from 16 to 4294967295 (got {spp})" in one_line(result.stderr)
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("names", [["report.md", "results.json"], ["notes.txt"], [".keep"],
+                                   ["a", "b", "c", "d", "images/x.png"]],
+                         ids=["a-report", "notes", "hidden", "many"])
+def test_compare_refuses_a_folder_of_the_users(tmp_path, names):
+    """``--out`` into a folder that compare did not write replaced the
+    user's report.md and results.json; now nothing in it changes."""
+    out = tmp_path / "out"
+    for name in names:
+        (out / name).parent.mkdir(parents=True, exist_ok=True)
+        (out / name).write_text(f"the user's {name}")
+
+    def contents():
+        return {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+
+    before = contents()
+    shown = sorted({name.split("/")[0] for name in names})
+    listed = ", ".join(f"'{name}'" for name in shown[:3]) + (", ..." if len(shown) > 3 else "")
+    sentence = (f"mitsuba-whitted compare: folder '{out}' holds files that compare did not "
+                f"write ({listed}), which its report would replace; give --out a new or empty "
+                "folder, or one that compare wrote.")
+    result = cli("compare", str(REPORT_SCENE), "--quick", "-D", "res=16", "--out", str(out))
+    assert result.returncode == 2
+    assert one_line(result.stderr) == sentence
+    with pytest.raises(CompareError) as refused:
+        compare_scene(REPORT_SCENE, out, CompareOptions.make(True), {"res": "16"})
+    assert str(refused.value) == sentence
+    assert contents() == before

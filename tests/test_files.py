@@ -318,7 +318,8 @@ def blocked(tmp_path) -> Path:
     return blocker
 
 
-@pytest.mark.parametrize("command", ["render-folder", "render-suffix", "bench", "compare"])
+@pytest.mark.parametrize("command", ["render-folder", "render-suffix", "bench", "compare",
+                                     "render-many"])
 def test_the_output_is_checked_before_the_work_starts(tmp_path, monkeypatch, capsys, command):
     def never(*args, **kwargs):
         raise AssertionError("the work started")
@@ -336,6 +337,9 @@ def test_the_output_is_checked_before_the_work_starts(tmp_path, monkeypatch, cap
                   f"'{blocker}' is a file, not a folder"),
         "compare": (["compare", "--quick", str(REPORT_SCENE), "--out", str(blocker)],
                     "it is a file, not a folder"),
+        # It named the image in the folder, after the first render.
+        "render-many": (["render-many", str(REPORT_SCENE), "--out", str(blocker)],
+                        f"cannot write '{blocker}': it is a file, not a folder."),
     }[command]
     assert mitsuba_whitted.cli.main(argv) == 2
     assert problem in one_line(capsys.readouterr().err)

@@ -7,6 +7,7 @@ signal is sent 1 s after its first output there (the progress display, or
 the first progress line), so that the work, not Python's start-up, is what
 is interrupted."""
 
+import fcntl
 import hashlib
 import os
 import pty
@@ -14,6 +15,7 @@ import select
 import signal
 import subprocess
 import sys
+import termios
 import time
 import tty
 
@@ -23,6 +25,8 @@ import numpy as np
 import pytest
 
 from mitsuba_whitted.integrators.frozen import FrozenKernel
+from mitsuba_whitted.compare.scene_report import FOLDER_MARK
+from mitsuba_whitted.interrupt import STOPPING
 from validation.scenes import REPORT_SCENE, ROOT
 
 
@@ -77,8 +81,7 @@ def last_line(output: str) -> str:
 def assert_stopped(code, seconds, output, program="mitsuba-whitted", signum=signal.SIGINT):
     assert code == 128 + signum, output
     assert seconds < 2, f"{seconds:.2f} s from the signal to the end"
-    said = {signal.SIGINT: "interrupted", signal.SIGTERM: "terminated"}[signum]
-    assert last_line(output) == f"{program}: {said}."
+    assert last_line(output) == f"{program}: {STOPPING[signum]}."
     assert "Traceback" not in output and "leak" not in output, output
 
 
@@ -135,6 +138,108 @@ def test_kill_stops_a_render_as_ctrl_c_does(tmp_path, samples_scene, kernels):
     assert [p.name for p in target.parent.iterdir()] == ["x.png"]
 
 
+@pytest.mark.parametrize("suffix", ["png", "exr"])
+@pytest.mark.parametrize("signum", [signal.SIGHUP, signal.SIGQUIT], ids=["SIGHUP", "SIGQUIT"])
+def test_a_hang_up_or_ctrl_backslash_stops_a_render_as_kill_does(tmp_path, samples_scene,
+                                                                  signum, suffix):
+    """SIGHUP (the terminal closed, its SSH session lost) and SIGQUIT
+    (Ctrl-\\) ended the process at once and left the hidden temporary
+    beside the image: now the exit code is 128 plus the signal's number,
+    with one line, and the old image is as it was."""
+    target = tmp_path / "out" / f"x.{suffix}"
+    target.parent.mkdir()
+    target.write_bytes(b"the user's image")
+    code, seconds, output = interrupted(
+        ["-m", "mitsuba_whitted.cli", "render", str(samples_scene), "-o", str(target),
+         "-D", "res=6000", "-D", "aa=none"], signum=signum)
+    assert_stopped(code, seconds, output, signum=signum)
+    assert target.read_bytes() == b"the user's image"
+    assert [p.name for p in target.parent.iterdir()] == [target.name]
+
+
+def test_a_real_hang_up_ends_the_command_without_its_last_words(tmp_path, samples_scene):
+    """The command's terminal closes (its controlling terminal: the system
+    sends SIGHUP): the line that would say so cannot be written any more,
+    and the command must end all the same, without a temporary."""
+    target = tmp_path / "x.exr"
+    terminal, child_end = pty.openpty()
+
+    def own_terminal():
+        os.setsid()
+        fcntl.ioctl(2, termios.TIOCSCTTY, 0)
+
+    process = subprocess.Popen([sys.executable, "-m", "mitsuba_whitted.cli", "render",
+                                str(samples_scene), "-o", str(target), "-D", "res=6000",
+                                "-D", "aa=none"], stdin=subprocess.DEVNULL,
+                               stdout=child_end, stderr=child_end, cwd=ROOT,
+                               preexec_fn=own_terminal)
+    os.close(child_end)
+    try:
+        assert _read(terminal, until_any=True, seconds=300), "the command wrote nothing"
+        _read(terminal, seconds=1.0)
+        assert process.poll() is None, "the command ended before the hang-up"
+    finally:
+        os.close(terminal)
+    assert process.wait(timeout=60) == 128 + signal.SIGHUP
+    assert list(tmp_path.iterdir()) == [samples_scene]
+
+
+#: A command whose last write sends it ``SIGNAL`` ``WHEN`` (while the
+#: file is written, or just after the rename that puts it in place), then
+#: says that it is done, and takes longer than the watcher's grace.
+LAST_WRITE = """
+import os, signal, sys, time
+from mitsuba_whitted import files, interrupt
+from mitsuba_whitted.cli import run_command
+
+target, when, signum = sys.argv[1], sys.argv[2], int(sys.argv[3])
+replace = os.replace
+
+def replace_then_signal(source, destination):
+    replace(source, destination)
+    os.kill(os.getpid(), signum)
+
+def write(file):
+    file.write(b"new")
+    if when == "while writing":
+        os.kill(os.getpid(), signum)
+        time.sleep(2)
+
+def command():
+    if when == "after the rename":
+        os.replace = replace_then_signal
+    with interrupt.last_write():
+        files.write_atomically(target, write)
+    print("written")
+    time.sleep(1)
+    return 0
+
+sys.exit(run_command(command))
+"""
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+@pytest.mark.parametrize("when", ["while writing", "after the rename"])
+def test_a_signal_at_the_last_write_stops_before_the_rename_or_not_at_all(tmp_path, when,
+                                                                         signum):
+    """Ctrl-C as the image was put in place gave 'rendered and written',
+    then 'interrupted.' and exit code 130, with the file replaced. Before
+    the rename, the command stops and the old file stays; after it, the
+    command has succeeded and ends with 0."""
+    target = tmp_path / "x.png"
+    target.write_bytes(b"old")
+    result = subprocess.run([sys.executable, "-c", LAST_WRITE, str(target), when, str(signum)],
+                            capture_output=True, text=True, timeout=60, cwd=ROOT)
+    if when == "after the rename":
+        assert (result.returncode, result.stdout, result.stderr) == (0, "written\n", "")
+        assert target.read_bytes() == b"new"
+    else:
+        assert (result.returncode, result.stdout) == (128 + signum, "")
+        assert result.stderr == f"mitsuba-whitted: {STOPPING[signum]}.\n"
+        assert target.read_bytes() == b"old"
+    assert list(tmp_path.iterdir()) == [target]
+
+
 SLOW_STEP = ("import os, signal, time\n"
              "os.kill(os.getpid(), signal.SIGINT)\n"
              "time.sleep(0.2)\n"
@@ -189,10 +294,12 @@ def test_ctrl_c_stops_compare(tmp_path):
                                          "--quick", "-D", "res=128", "--out", str(out)])
     assert_stopped(code, seconds, output)
     assert output.count("\n") == 1, output
-    # A reference finished before the signal is a whole cache entry.
-    for path in (p for p in out.rglob("*") if p.is_file()):
+    # A reference finished before the signal is a whole cache entry; the
+    # folder's mark lets the next compare write there.
+    for path in (p for p in out.rglob("*") if p.is_file() and p.parent != out):
         assert path.parent.name == "cache" and not path.name.startswith("."), path
         np.load(path)["image"]
+    assert [p.name for p in out.iterdir() if p.is_file()] == [FOLDER_MARK]
 
 
 def test_ctrl_c_stops_bench(tmp_path):

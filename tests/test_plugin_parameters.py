@@ -345,6 +345,10 @@ INTEGRATOR_CASES = [
     ("ambient", [-1.0, 0.0, 0.0], rgb(-1, 0, 0), '<rgb name="ambient" value="-1, 0, 0"/>'),
     ("ambient", [NAN, 0.0, 0.0], "grey", '<string name="ambient" value="grey"/>'),
     ("hide_emitters", None, "yes", '<string name="hide_emitters" value="yes"/>'),
+    # Whole numbers past the 32 bits the settings are kept in.
+    ("max_depth", None, 1 << 40, '<integer name="max_depth" value="1099511627776"/>'),
+    ("aa_samples", None, -(1 << 33), '<integer name="aa_samples" value="-8589934592"/>'),
+    ("wavefront_size", None, "1e20", '<string name="wavefront_size" value="1e20"/>'),
 ]
 
 

@@ -17,7 +17,9 @@ variant, and again after each ``mi.set_variant``, whichever comes first::
     scene = mi.load_file("scenes/cosc363.xml")
     image = mi.render(scene)
 
-A usable libLLVM is chosen before Dr.Jit loads one (see :mod:`.llvm`).
+A usable libLLVM is chosen before Dr.Jit loads one (see :mod:`.llvm`), and
+``mi.render`` raises the plugins' errors and Ctrl-C as they were raised
+(see :mod:`.checked_render`).
 """
 
 from __future__ import annotations
@@ -25,9 +27,10 @@ from __future__ import annotations
 import importlib
 import sys
 
-from . import interrupt
+from . import interrupt, system
 
 if interrupt.started_as("mitsuba_whitted.cli", "mitsuba-whitted"):
+    system.open_standard_streams()
     interrupt.end_quietly_on_ctrl_c("mitsuba-whitted")
 
 from . import llvm  # noqa: E402  (after Ctrl-C is handled)
@@ -52,6 +55,9 @@ DEFAULT_VARIANT = "llvm_ad_rgb"
 llvm.configure()
 
 import mitsuba as mi  # noqa: E402  (after the libLLVM choice)
+
+from .checked_render import checked  # noqa: E402
+from .scene_files import check_films, parse  # noqa: E402
 
 
 def _register_plugins(variant: str | None) -> None:
@@ -111,9 +117,12 @@ def load_file(path: str, **defines):
     merging of shapes that share a BSDF into one mesh orders them
     differently from run to run (a cube of six rectangles did); both are
     off here. Ray counts and render times of ``scenes/cosc363.xml`` are the
-    same either way."""
+    same either way. A film without pixels is refused by name
+    (:func:`.scene_files.check_films`)."""
+    check_films(parse(path, defines))
     return mi.load_file(str(path), parallel=False, optimize=False, **defines)
 
 
 mi.detail.add_variant_callback(_on_variant_change)
+mi.render = checked(mi.render)
 _register_plugins(mi.variant())

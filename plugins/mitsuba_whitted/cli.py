@@ -11,17 +11,21 @@ from __future__ import annotations
 
 import argparse
 import re
+import select
+import signal
 import sys
 import time
 import warnings
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 
 import mitsuba as mi
 
 from . import files
 from .errors import UsageError, caused_by, one_sentence
-from .interrupt import InterruptGuard, interrupted_line
+from .interrupt import InterruptGuard, exit_code, interrupted_line, last_write
 from .progress import Progress
+from .scene_files import check_not_read
+from .system import to_null
 
 
 def _parse_defines(pairs: list[str]) -> dict:
@@ -48,8 +52,10 @@ def command_render(args) -> int:
 
     check_image_path(args.output)
     mitsuba_whitted.set_variant(args.variant)
+    defines = _parse_defines(args.define)
+    check_not_read([args.output], args.scene, defines)
     started = time.perf_counter()
-    scene = _load_scene(args.scene, _parse_defines(args.define))
+    scene = _load_scene(args.scene, defines)
     loaded = time.perf_counter()
     integrator = scene.integrator()
     if not scene.sensors():
@@ -58,11 +64,13 @@ def command_render(args) -> int:
     progress = Progress()
     if hasattr(integrator, "render_rows"):
         integrator.progress = progress
-        _render_whitted_to_file(scene, integrator, args.output)
+        with last_write():
+            _render_whitted_to_file(scene, integrator, args.output)
     else:
         image = mi.render(scene)
         dr.sync_thread()
-        write_image(args.output, image.numpy())
+        with last_write():
+            write_image(args.output, image.numpy())
     rendered = time.perf_counter()
     progress.finish()
     width, height = scene.sensors()[0].film().crop_size()
@@ -110,11 +118,12 @@ def command_compare(args) -> int:
     from pathlib import Path
 
     import mitsuba_whitted
-    from .compare import CompareOptions, Estimate, compare_scene, estimate_text
+    from .compare import (CompareOptions, Estimate, check_report_folder, compare_scene,
+                          estimate_text)
     from .distributed import backend
 
     options = CompareOptions.make(args.quick, args.reference_spp)
-    out = files.check_folder(args.out or f"compare-{Path(args.scene).stem}")
+    out = check_report_folder(args.out or f"compare-{Path(args.scene).stem}")
     mitsuba_whitted.set_variant(args.variant)
     with backend(args.workers, args.cluster) as runner:
         result = compare_scene(args.scene, out, options, _parse_defines(args.define),
@@ -156,12 +165,15 @@ def command_bench(args) -> int:
     mitsuba_whitted.set_variant(args.variant)
     scene = files.check_readable(args.scene or bench.DEFAULT_SCENE)
     defines = _parse_defines(args.define)
+    if args.json:
+        check_not_read([args.json], scene, defines)
     settings = (bench.BenchSettings.quick(scene, defines) if args.quick
                 else bench.BenchSettings(scene, defines))
     results = bench.run(settings, report=lambda line: print(line, file=sys.stderr))
     print(bench.format_table(results))
     if args.json:
-        files.write_text(args.json, json.dumps(results, indent=2))
+        with last_write():
+            files.write_text(args.json, json.dumps(results, indent=2))
     return 0
 
 
@@ -269,23 +281,57 @@ def erase_line(stream) -> str:
 def run_command(function, *args, program: str = "mitsuba-whitted") -> int:
     """``function(*args)`` as a command: its warnings on stderr in plain
     lines, any error as one sentence (exit code 2), Ctrl-C as one line and
-    exit code 130 (143 for SIGTERM; see :mod:`.interrupt`), no partial file
-    either way."""
+    exit code 130 (143 for SIGTERM, ...; see :mod:`.interrupt`), no partial
+    file either way. Output into a pipe that its reader has closed ends
+    the command quietly with 141, as SIGPIPE would."""
     def last_words(signum):
         files.discard_pending()
-        sys.stderr.write(erase_line(sys.stderr) + interrupted_line(program, signum))
+        _say(erase_line(sys.stderr) + interrupted_line(program, signum))
 
     with InterruptGuard(last_words) as guard:
         try:
             with plain_warnings():
-                return function(*args)
+                code = function(*args)
+            sys.stdout.flush()  # a closed pipe shows here, not at the exit
+            return code
         except SystemExit:
             raise
         except BaseException as error:
             if guard.requested.is_set() or caused_by(error, KeyboardInterrupt):
                 guard.stop()
-            print(one_sentence(error), file=sys.stderr)
+            if caused_by(error, BrokenPipeError) and _silence_closed_pipes():
+                return exit_code(signal.SIGPIPE)
+            _say(one_sentence(error) + "\n")
     return 2
+
+
+def _say(text: str) -> None:
+    """``text`` on stderr, if anything still reads it (a terminal that hung
+    up, a closed pipe: the command ends all the same)."""
+    with suppress(OSError, ValueError):
+        sys.stderr.write(text)
+        sys.stderr.flush()
+
+
+def _silence_closed_pipes() -> bool:
+    """Whether stdout or stderr is a pipe whose reader has gone; each such
+    stream then writes to /dev/null, so that nothing more fails on it
+    (Python flushes them at the exit)."""
+    closed = [stream.fileno() for stream in (sys.stdout, sys.stderr) if _reader_gone(stream)]
+    for descriptor in closed:
+        to_null(descriptor)
+    return bool(closed)
+
+
+def _reader_gone(stream) -> bool:
+    """Whether ``stream`` is a pipe or socket without a reader: the system
+    then reports an error condition on it."""
+    try:
+        poller = select.poll()
+        poller.register(stream.fileno(), select.POLLOUT)
+        return any(events & select.POLLERR for _, events in poller.poll(0))
+    except (AttributeError, OSError, ValueError):
+        return False
 
 
 class _PlainFormatter(mi.Formatter):

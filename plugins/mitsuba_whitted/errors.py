@@ -42,6 +42,15 @@ def caused_by(error: BaseException, kind: type) -> bool:
     return any(isinstance(link, kind) for link in _chain(error))
 
 
+def own_error(error: BaseException) -> BaseException | None:
+    """The ``KeyboardInterrupt``, or the exception of this package, that
+    ``error`` is or wraps (as Dr.Jit's custom operations wrap what they
+    raise into a ``RuntimeError``); ``None`` if there is none."""
+    package = __name__.partition(".")[0]
+    return next((link for link in _chain(error) if isinstance(link, KeyboardInterrupt)
+                 or type(link).__module__.partition(".")[0] == package), None)
+
+
 def _chain(error: BaseException):
     seen = set()
     while error is not None and id(error) not in seen:

@@ -18,7 +18,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import BinaryIO, Callable
 
-from .interrupt import held_off
+from .interrupt import held_off, put_in_place
 from .system import proc_field
 
 #: Temporary files and folders not yet renamed into place. A process that
@@ -118,7 +118,7 @@ def write_atomically(path: str | Path, write: Callable[[BinaryIO], None]) -> Pat
             handle.flush()
             os.fchmod(handle.fileno(), mode)
             os.fsync(handle.fileno())
-        os.replace(temporary, target)
+        put_in_place(temporary, target)
     except WriteError:
         raise
     except OSError as error:

@@ -1,6 +1,14 @@
-"""Ctrl-C (or a plain ``kill``) on the command line: the process stops
-within about a second, says so in one line, exits with 130 (143 for
-SIGTERM) and leaves no partial file.
+"""Ctrl-C (or a plain ``kill``, a closed terminal, Ctrl-\\) on the command
+line: the process stops within about a second, says so in one line, exits
+with 128 plus the signal's number (130 for SIGINT, 143 for SIGTERM, 129
+for SIGHUP, 131 for SIGQUIT) and leaves no partial file. These are the
+signals a terminal or a job runner sends to stop a command; SIGPIPE is
+left to Python, which ignores it and raises ``BrokenPipeError`` at the
+write instead (see ``cli.run_command``).
+
+A command whose last file is in place has succeeded: a signal that comes
+after the rename that put it there no longer stops it, and one that came
+before stops it before that rename (:func:`last_write`).
 
 Python raises ``KeyboardInterrupt`` only when its main thread runs Python
 code, and a Dr.Jit launch, an LLVM compilation or a render of Mitsuba's
@@ -22,10 +30,11 @@ import signal
 import sys
 import threading
 import time
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 
 #: The signals that stop a command, and what it says when one does.
-STOPPING = {signal.SIGINT: "interrupted", signal.SIGTERM: "terminated"}
+STOPPING = {signal.SIGINT: "interrupted", signal.SIGTERM: "terminated",
+            signal.SIGHUP: "hung up", signal.SIGQUIT: "quit"}
 #: Seconds the main thread has to unwind before the watcher ends the process.
 GRACE = 0.5
 #: Seconds before a signal that came during an import is sent again.
@@ -38,11 +47,15 @@ def exit_code(signum: int) -> int:
 
 
 class InterruptGuard:
-    """While active, SIGINT or SIGTERM raises ``KeyboardInterrupt`` once in
-    the main thread (once an import under way is over) and ends the process
-    (:meth:`stop`) at the latest :data:`GRACE` seconds later.
-    ``last_words(signum)`` removes what a stopped process must not leave
-    behind and says that it stopped."""
+    """While active, a signal of :data:`STOPPING` raises
+    ``KeyboardInterrupt`` once in the main thread (once an import under way
+    is over) and ends the process (:meth:`stop`) at the latest
+    :data:`GRACE` seconds later, unless the command has put its last file
+    in place (:meth:`commit`). ``last_words(signum)`` removes what a
+    stopped process must not leave behind and says that it stopped."""
+
+    #: The guard of the command that runs now, if any.
+    active: "InterruptGuard | None" = None
 
     def __init__(self, last_words):
         self.last_words = last_words
@@ -51,6 +64,8 @@ class InterruptGuard:
         #: ``KeyboardInterrupt`` that came from elsewhere).
         self.received = signal.SIGINT
         self._raised = False
+        #: Set once the command's last file is in place.
+        self.committed = False
         self._stopping = threading.Lock()
 
     def __enter__(self) -> "InterruptGuard":
@@ -63,17 +78,20 @@ class InterruptGuard:
             self._previous_handlers = {signum: signal.signal(signum, self._raise_once)
                                        for signum in STOPPING}
             threading.Thread(target=self._watch, name="interrupt watcher", daemon=True).start()
+            InterruptGuard.active = self
         return self
 
     def __exit__(self, *exc) -> None:
+        InterruptGuard.active = None
         for signum, handler in self._previous_handlers.items():
             signal.signal(signum, handler)
         signal.set_wakeup_fd(self._previous_fd)
         os.close(self._write)  # the watcher reads the end of the pipe and returns
 
     def _raise_once(self, signum, frame) -> None:
-        # A second signal must not break off the clean-up the first started.
-        if self._raised:
+        # A second signal must not break off the clean-up the first started,
+        # and none may fail a command that has succeeded.
+        if self._raised or self.committed:
             return
         self._note(signum)
         # An import broken off leaves a module half made, and inside an
@@ -111,13 +129,27 @@ class InterruptGuard:
 
     def stop(self) -> None:
         """``last_words(signum)``, then end the process with the signal's
-        exit code. Called from both threads; the first call ends the
-        process and the second waits for that."""
+        exit code; nothing once the command has committed. Called from
+        both threads; the first call ends the process and the second waits
+        for that."""
         with self._stopping:
+            if self.committed:
+                return
             self.last_words(self.received)
-            sys.stdout.flush()
-            sys.stderr.flush()
+            for stream in (sys.stdout, sys.stderr):
+                # Gone with the terminal (SIGHUP), or closed: nothing to keep.
+                with suppress(AttributeError, OSError, ValueError):
+                    stream.flush()
             os._exit(exit_code(self.received))
+
+    def commit(self, action) -> None:
+        """``action()``, the step that completes the command (the rename of
+        its last file), unless a signal has already ended the process;
+        afterwards signals no longer stop it. Held off, so that no
+        ``KeyboardInterrupt`` comes between the step and the commitment."""
+        with held_off(), self._stopping:
+            action()
+            self.committed = True
 
 
 #: How many :func:`held_off` blocks are running.
@@ -135,6 +167,33 @@ def held_off():
         yield
     finally:
         _held_off -= 1
+
+
+#: Whether the block that writes the command's last file is running.
+_last_write = False
+
+
+@contextmanager
+def last_write():
+    """The block that writes the command's last file: the rename that puts
+    it in place (:func:`put_in_place`) completes the command
+    (:meth:`InterruptGuard.commit`)."""
+    global _last_write
+    _last_write = True
+    try:
+        yield
+    finally:
+        _last_write = False
+
+
+def put_in_place(source, target) -> None:
+    """``os.replace(source, target)``; in a :func:`last_write` block of a
+    command, also the command's commitment."""
+    guard = InterruptGuard.active
+    if _last_write and guard is not None:
+        guard.commit(lambda: os.replace(source, target))
+    else:
+        os.replace(source, target)
 
 
 def _importing(frame) -> bool:

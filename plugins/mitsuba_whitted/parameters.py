@@ -9,6 +9,7 @@ nothing.
 
 from __future__ import annotations
 
+import operator
 from contextlib import contextmanager
 
 import drjit as dr
@@ -16,6 +17,7 @@ import mitsuba as mi
 import numpy as np
 
 from .errors import ParameterError, check
+from .jit import to_int
 from .mathutil import invert_affine_f64
 
 
@@ -85,6 +87,20 @@ def checked_numbers(value, plugin: str, name: str, *, size: int = 1,
         valid &= bool((numbers >= at_least).all())
     check(valid, plugin, name, f"must be {what} (got {got})")
     return numbers.tolist()
+
+
+def check_seed(seed, plugin: str, name: str = "seed") -> int:
+    """A render seed as a Python number (``mi.render`` passes on what its
+    caller gave, a number or an ``mi.UInt32``), or a
+    :class:`~.errors.ParameterError` unless 32 bits hold it, as the
+    seeds are hashed."""
+    try:
+        value = operator.index(to_int(seed) if dr.is_array_v(seed) else seed)
+    except TypeError:
+        value = None
+    check(value is not None and 0 <= value < 1 << 32, plugin, name,
+          f"must be a whole number from 0 to 2^32 - 1 (got {seed!r})")
+    return value
 
 
 def _matrix(value):

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import platform
+import sys
 
 
 def proc_field(path: str, name: str) -> str | None:
@@ -74,3 +75,30 @@ def _read_int(path: str) -> int | None:
             return int(file.read().strip())
     except (OSError, ValueError):
         return None
+
+
+#: The standard streams: their descriptors, names in ``sys`` and modes.
+STANDARD_STREAMS = ((0, "stdin", "r"), (1, "stdout", "w"), (2, "stderr", "w"))
+
+
+def open_standard_streams() -> None:
+    """/dev/null in place of a standard stream the command was started
+    without (``2>&-``). Python leaves ``sys.stderr`` ``None`` then, where
+    the progress display and the error sentence fail; and the next file
+    opened would take the free descriptor, so that what a library writes
+    to stderr would go into it (an image being written)."""
+    for descriptor, name, mode in STANDARD_STREAMS:
+        try:
+            os.fstat(descriptor)
+        except OSError:
+            to_null(descriptor)
+        if getattr(sys, name) is None:
+            setattr(sys, name, open(descriptor, mode, closefd=False, errors="backslashreplace"))
+
+
+def to_null(descriptor: int) -> None:
+    """Make ``descriptor`` read from and write to /dev/null."""
+    null = os.open(os.devnull, os.O_RDWR)
+    if null != descriptor:
+        os.dup2(null, descriptor)
+        os.close(null)

@@ -13,4 +13,5 @@ from .sweep import (PATH_SAMPLERS, Setting, Sweep, SweepPoint, path_ladder, path
                     run_sweep, scene_whitted_settings, whitted_settings, whitted_variants)
 from .equal_error import Analysis, Gain, analyse, envelope, reach
 from .intervals import Estimate, estimate_text, verdict, verdict_text
-from .scene_report import CompareError, CompareOptions, compare_scene, load_scene
+from .scene_report import (CompareError, CompareOptions, check_report_folder, compare_scene,
+                           load_scene)

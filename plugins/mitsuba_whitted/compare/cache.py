@@ -13,6 +13,8 @@ from __future__ import annotations
 import hashlib
 import json
 import re
+import warnings
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -86,11 +88,19 @@ class ReferenceCache:
         return self.directory / f"{key}.npz"
 
     def load(self, key: str) -> dict | None:
+        """The entry's arrays; ``None`` if it is absent, or unreadable (cut
+        short, or written over by something else), which the next store
+        replaces."""
         path = self.path(key)
         if not path.is_file():
             return None
-        with np.load(path) as data:
-            return {name: data[name] for name in data.files}
+        try:
+            with np.load(path) as data:
+                return {name: data[name] for name in data.files}
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:
+            warnings.warn(f"mitsuba-whitted: the cache entry '{path}' cannot be read "
+                          f"({error}); it is computed again.", stacklevel=2)
+            return None
 
     def store(self, key: str, arrays: dict) -> None:
         write_atomically(self.path(key), lambda file: np.savez(file, **arrays))

@@ -19,8 +19,9 @@ import numpy as np
 
 from .. import load_file
 from ..distributed import SceneSource
-from ..files import check_readable, write_text
+from ..files import check_folder, check_readable, write_text
 from ..film_format import developed_format, develops_to_rgb
+from ..scene_files import check_not_read
 from ..system import machine
 from .cache import ReferenceCache, cache_key
 from .converged import CONVERGED_SIDE, QUICK_SIDE, converged_renders, mean_errors
@@ -36,6 +37,11 @@ from .sweep import (Sweep, SweepPoint, path_ladder, run_sweep, sampler_sensors,
                     scene_whitted_settings, whitted_settings, whitted_variants)
 
 REFERENCE_PASSES = 16
+#: Most samples per pixel: ``mi.render`` takes a 32-bit count.
+MAX_SPP = (1 << 32) - 1
+#: Written into a comparison's folder before its first file: a later
+#: comparison may write there again.
+FOLDER_MARK = ".mitsuba-whitted-compare"
 #: Side of the zoomed crops, in pixels of the image, and their width once
 #: enlarged.
 CROP_SIDE, CROP_WIDTH = 24, 192
@@ -54,9 +60,9 @@ class CompareOptions:
 
     @classmethod
     def make(cls, quick: bool = False, reference_spp: int | None = None) -> "CompareOptions":
-        if reference_spp is not None and reference_spp < REFERENCE_PASSES:
-            raise CompareError(f"mitsuba-whitted: --reference-spp must be at least "
-                               f"{REFERENCE_PASSES} (got {reference_spp}).")
+        if reference_spp is not None and not REFERENCE_PASSES <= reference_spp <= MAX_SPP:
+            raise CompareError(f"mitsuba-whitted: --reference-spp must be from "
+                               f"{REFERENCE_PASSES} to {MAX_SPP} (got {reference_spp}).")
         if quick:
             spp = reference_spp or 64
             return cls(spp, min(16, spp // 4), 4, True)
@@ -93,14 +99,34 @@ def load_scene(path: str | Path, defines: dict | None = None) -> mi.Scene:
     return scene
 
 
+def check_report_folder(out: str | Path) -> Path:
+    """``out`` if a comparison may write its report there: a new or empty
+    folder, or one that a comparison wrote (it holds :data:`FOLDER_MARK`);
+    else a :class:`CompareError`, as the report would replace the files
+    in it."""
+    out = check_folder(out)
+    found = sorted(p.name for p in out.iterdir()) if out.is_dir() else []
+    if found and FOLDER_MARK not in found:
+        shown = ", ".join(f"'{name}'" for name in found[:3]) + (", ..." if len(found) > 3 else "")
+        raise CompareError(f"mitsuba-whitted compare: folder '{out}' holds files that compare "
+                           f"did not write ({shown}), which its report would replace; give "
+                           "--out a new or empty folder, or one that compare wrote.")
+    return out
+
+
 def compare_scene(scene_path: str | Path, out_dir: str | Path, options: CompareOptions,
                   defines: dict | None = None, cache_dir: str | Path | None = None,
                   progress=None, keep_linear: bool = True, backend=None) -> SceneComparison:
     """Render, measure and report; the reference and the converged Whitted
     renders are cached in ``cache_dir`` (default ``<out_dir>/cache``), the
-    reference rendered by ``backend`` (default: in this process)."""
-    scene_path, out_dir = Path(scene_path), Path(out_dir)
+    reference rendered by ``backend`` (default: in this process). ``out_dir``
+    is refused unless :func:`check_report_folder` accepts it, and so is
+    one that holds a file the scene reads."""
+    scene_path, out_dir = Path(scene_path), check_report_folder(out_dir)
+    check_not_read([out_dir], scene_path, defines or {})
     scene = load_scene(scene_path, defines)
+    write_text(out_dir / FOLDER_MARK, "A report of mitsuba-whitted compare, which writes "
+               "here again.\n")
     source = SceneSource(scene_path, defines or {}, scene)
     cache = ReferenceCache(cache_dir or out_dir / "cache")
     settings = path_settings()

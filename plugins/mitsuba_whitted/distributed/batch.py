@@ -5,7 +5,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..files import check_readable
+from ..files import check_folder, check_readable
+from ..scene_files import check_not_read
 from .backends import InProcess, run_job
 from .scene import SceneSource
 from .task import Task
@@ -17,8 +18,9 @@ class BatchError(ValueError):
 
 def output_paths(scenes: list[Path], out_dir: Path, suffix: str) -> list[Path]:
     """``out_dir/<scene file's stem><suffix>`` for each scene; a scene that
-    is not a readable file, and two scenes that would write the same image,
-    are refused."""
+    is not a readable file, an ``out_dir`` that cannot be a folder, and two
+    scenes that would write the same image, are refused."""
+    check_folder(out_dir)
     outputs, seen = [], {}
     for scene in scenes:
         check_readable(scene)
@@ -40,6 +42,8 @@ def render_many(scenes, out_dir, defines: dict | None = None, backend=None, prog
 
     scenes = [Path(scene) for scene in scenes]
     outputs = output_paths(scenes, Path(out_dir), suffix)
+    for scene in scenes:  # one scene's image may be another's texture
+        check_not_read(outputs, scene, defines or {})
     sources = [SceneSource(scene, defines or {}) for scene in scenes]
     tasks = [Task(source.digest) for source in sources]
 

@@ -9,7 +9,7 @@ import numpy as np
 from ..jit import in_launches, to_int
 from ..errors import ParameterError, VariantError, check, check_choice
 from ..film_format import developed_format
-from ..parameters import LastValid, checked_numbers, describe
+from ..parameters import LastValid, check_seed, checked_numbers, describe
 from . import antialias, gradients, render_plan
 from .render_plan import Demand, RenderPlan, plan_render
 from .scene_checks import check_emitters, check_placements
@@ -42,12 +42,17 @@ def _given(props: mi.Properties, name: str, default):
     return props.get(name) if name in props else default
 
 
+#: The range of the 32-bit integers the settings are kept in (``mi.Int32``).
+INT32_RANGE = (-(1 << 31), (1 << 31) - 1)
+
+
 def _whole(default: int):
     def read(props: mi.Properties, name: str) -> int:
         value = checked_numbers(_given(props, name, default), PLUGIN_NAME, name)[0]
-        # ``mi.traverse`` hands the whole settings out as 32-bit integers.
-        check(value == int(value) and -2 ** 31 <= value < 2 ** 31, PLUGIN_NAME, name,
-              f"must be a whole number from -2^31 to 2^31 - 1 (got {value:g})")
+        check(value == int(value), PLUGIN_NAME, name, f"must be a whole number (got {value:g})")
+        low, high = INT32_RANGE
+        check(low <= value <= high, PLUGIN_NAME, name,
+              f"must be a whole number from {low} to {high} (got {int(value)})")
         return int(value)
     return read
 
@@ -805,12 +810,8 @@ class _LastRender:
 
 
 def seed_value(seed) -> int:
-    """A render seed as a Python number: ``mi.render`` passes what its
-    caller gave, an int or an ``mi.UInt32`` (always one for gradients)."""
-    value = to_int(seed)
-    check(0 <= value < 1 << 32, PLUGIN_NAME, "seed",
-          f"must be a whole number from 0 to 2^32 - 1 (got {value})")
-    return value
+    """A render seed as a Python number (:func:`.parameters.check_seed`)."""
+    return check_seed(seed, PLUGIN_NAME)
 
 
 def _differential_seed(seed: int) -> int:

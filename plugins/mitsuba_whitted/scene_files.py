@@ -1,0 +1,67 @@
+"""What a scene file reads, as Mitsuba's parser finds it with the defines:
+the XML files (the scene and its includes), and each file that a property
+named ``filename`` names (textures, meshes, environment maps, spectra).
+
+The commands refuse to write over any of them (:func:`check_not_read`):
+an image written over the texture or the include it was rendered from
+would be a loss the user finds only later. And a film without pixels is
+refused by its own name (:func:`check_films`) before Mitsuba's camera
+divides by its size and blames its field of view.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import mitsuba as mi
+
+from .errors import ParameterError
+from .files import cannot_write, check_readable
+
+
+def parse(path: str | Path, defines: dict):
+    """Mitsuba's parse of the scene file (no object is made yet)."""
+    config = mi.parser.ParserConfig(mi.variant())
+    return mi.parser.parse_file(config, str(check_readable(path)), **defines)
+
+
+def files_read(path: str | Path, defines: dict) -> list[Path]:
+    """The files the scene reads, as real paths (links followed). A
+    relative name is looked up where Mitsuba looks: beside the scene file
+    (an include's names too), then in the working folder."""
+    state = parse(path, defines)
+    xml = [Path(str(name)) for name in state.files]
+    folders = [Path(path).parent, Path.cwd()]
+    found = set(xml)
+    for node in state.nodes:
+        name = node.props.get("filename")
+        if isinstance(name, str):
+            found.update(folder / name for folder in folders if (folder / name).is_file())
+    return sorted({Path(os.path.realpath(file)) for file in found})
+
+
+def check_not_read(outputs, scene: str | Path, defines: dict) -> None:
+    """A :class:`~.files.WriteError` if writing one of ``outputs`` (files,
+    or folders that a command fills) would replace a file the scene reads."""
+    read = files_read(scene, defines)
+    for output in outputs:
+        target = Path(os.path.realpath(output))
+        clash = next((file for file in read if target == file or target in file.parents), None)
+        if clash is not None:
+            what = "it" if clash == target else f"'{clash}' in it"
+            raise cannot_write(output, f"scene '{scene}' reads {what}; choose another output")
+
+
+def check_films(state) -> None:
+    """A :class:`~.errors.ParameterError` for a film of a parsed scene
+    whose width or height is below 1."""
+    for node in state.nodes:
+        if node.type != mi.ObjectType.Film:
+            continue
+        for side in ("width", "height"):
+            if side in node.props and node.props[side] < 1:
+                raise ParameterError(
+                    node.props.plugin_name(), side,
+                    f"must be at least 1 (got {node.props[side]}), at "
+                    f"{mi.parser.file_location(state, node)}")
