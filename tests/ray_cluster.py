@@ -1,6 +1,7 @@
 """A real Ray cluster on this machine for the tests: a head node and a
 second worker node, each its own ``ray start`` process, reached through
-127.0.0.1 and protected by a token of its own."""
+127.0.0.1 and protected by a token of its own unless a test asks for
+other settings."""
 
 from __future__ import annotations
 
@@ -83,15 +84,17 @@ def _wait_for_port(port: int, head: subprocess.Popen) -> None:
 
 
 @contextlib.contextmanager
-def two_node_cluster():
-    """The cluster's address and the environment that reaches it (its
-    token); both nodes are stopped on exit, whatever happens inside."""
+def two_node_cluster(env: dict | None = None):
+    """The cluster's address and the environment that reaches it: ``env``,
+    by default this process's with a token of the cluster's own. Both nodes
+    are stopped on exit, whatever happens inside."""
     # Short: Ray's socket paths under it must stay within 107 characters.
     temp = tempfile.mkdtemp(prefix="mwray")
     port = free_port()
     address = f"127.0.0.1:{port}"
-    env = dict(os.environ, RAY_USAGE_STATS_ENABLED="0", RAY_AUTH_MODE="token",
-               RAY_AUTH_TOKEN=secrets.token_hex(16))
+    if env is None:
+        env = dict(os.environ, RAY_AUTH_MODE="token", RAY_AUTH_TOKEN=secrets.token_hex(16))
+    env = dict(env, RAY_USAGE_STATS_ENABLED="0")
     env.pop("RAY_ADDRESS", None)
     processes = []
     try:

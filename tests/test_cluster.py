@@ -178,3 +178,28 @@ def test_unreachable_cluster_is_one_sentence_naming_the_address(tmp_path):
     line = one_line(result.stderr)
     assert address in line and "no Ray cluster answers" in line
     assert not any(tmp_path.iterdir())
+
+
+def without_ray_auth(env) -> dict:
+    """``env`` without Ray's token settings (a user's shell has none)."""
+    return {name: value for name, value in env.items() if not name.startswith("RAY_AUTH")}
+
+
+def test_the_readmes_cluster_recipe_works_after_a_local_ray(tmp_path):
+    """``--workers`` in a fresh home leaves nothing there but Dr.Jit's
+    kernel cache (Ray would write a token to ~/.ray/auth_token, which turns
+    token authentication on for the user's next ``ray start --head``); then
+    the README's recipe, a head and a node that know no token, makes a
+    cluster of two nodes, which a command joins."""
+    home = tmp_path / "home"
+    home.mkdir()
+    env = dict(without_ray_auth(os.environ), HOME=str(home))
+    env.pop("RAY_ADDRESS", None)
+    result = cli("render-many", str(GLASS), "--out", str(tmp_path / "out"), "-D", "res=8",
+                 "--workers", "2", env=env, timeout=COMMAND_SECONDS)
+    assert result.returncode == 0, result.stderr
+    assert [path.name for path in home.iterdir()] == [".drjit"]
+    with two_node_cluster(env) as recipe:
+        result = cli("render-many", str(GLASS), "--out", str(tmp_path / "out"), "-D", "res=8",
+                     "--cluster", recipe.address, env=recipe.env, timeout=COMMAND_SECONDS)
+        assert result.returncode == 0, result.stderr

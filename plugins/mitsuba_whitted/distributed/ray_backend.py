@@ -25,6 +25,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import secrets
 import socket
 from collections import deque
 
@@ -46,6 +47,8 @@ JOIN_ATTEMPTS = 2
 POLL_SECONDS = 0.5
 #: Seconds to fetch the image of a task that has finished.
 FETCH_SECONDS = 60.0
+#: Ray's log on the driver: its warnings, not its workers' output.
+QUIET = {"log_to_driver": False, "logging_level": logging.WARNING}
 #: Tasks in flight per worker: one running and one waiting on the worker,
 #: so that it never waits for this process between two tasks.
 IN_FLIGHT_PER_WORKER = 2
@@ -92,34 +95,53 @@ def check_reachable(address: str) -> None:
 
 
 @contextlib.contextmanager
-def _join_attempts(attempts: int):
-    """Ray's number of attempts to reach a cluster, for this join only."""
-    name = "RAY_gcs_server_port_wait_time_s"
-    before = os.environ.get(name)
-    os.environ[name] = str(attempts)
+def _environment(values: dict, restored=()):
+    """The environment variables ``values`` for the block; these and the
+    variables ``restored`` are as they were before it afterwards."""
+    before = {name: os.environ.get(name) for name in (*values, *restored)}
+    os.environ.update(values)
     try:
         yield
     finally:
-        if before is None:
-            del os.environ[name]
-        else:
-            os.environ[name] = before
+        for name, value in before.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
 
 
 def _init(workers: int | None, address: str | None) -> None:
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
-    quiet = {"log_to_driver": False, "logging_level": logging.WARNING}
     if address is None:
-        # Ray protects a local Ray with a token of this user's by default,
-        # and says so at every start; that is the setting wanted here.
-        logging.getLogger("ray._private.authentication.authentication_token_setup").setLevel(
-            logging.ERROR)
-        ray.init(address="local", num_cpus=workers, include_dashboard=False, **quiet)
-        return
+        _start_local(workers)
+    else:
+        _join(address)
+
+
+#: The token of the local Rays this process starts. Ray would write a new
+#: one to ~/.ray/auth_token, where the user's own ``ray start --head``
+#: later finds it and turns token authentication on for a cluster whose
+#: other nodes know no token. Given in the environment instead, it goes to
+#: the Ray's processes, which take their environment from this one, and
+#: ends with them. One for the life of this process: Ray's token loader
+#: keeps the first token it reads.
+_LOCAL_TOKEN = secrets.token_hex(32)
+
+
+def _start_local(workers: int | None) -> None:
+    # Ray says at every start that it protects a local Ray with a token.
+    logging.getLogger("ray._private.authentication.authentication_token_setup").setLevel(
+        logging.ERROR)
+    # Ray sets RAY_AUTH_MODE for its processes when it finds the token.
+    with _environment({"RAY_AUTH_TOKEN": _LOCAL_TOKEN}, restored=["RAY_AUTH_MODE"]):
+        ray.init(address="local", num_cpus=workers, include_dashboard=False, **QUIET)
+
+
+def _join(address: str) -> None:
     check_reachable(address)
     try:
-        with _join_attempts(JOIN_ATTEMPTS):
-            ray.init(address=address, **quiet)
+        with _environment({"RAY_gcs_server_port_wait_time_s": str(JOIN_ATTEMPTS)}):
+            ray.init(address=address, **QUIET)
     except (ConnectionError, ImportError, RuntimeError, ValueError) as error:
         detail = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
         raise ClusterError(f"mitsuba-whitted: could not join the Ray cluster at {address}: "
