@@ -26,13 +26,16 @@ import contextlib
 import logging
 import os
 import secrets
+import signal
 import socket
+import threading
 from collections import deque
 
 import ray
 import ray.exceptions
 
 from ..errors import ClusterError
+from ..interrupt import STOPPING
 from .scene import load_bundle
 from .task import Environment, make_integrator, prepare_process, render_task
 
@@ -116,6 +119,7 @@ def _init(workers: int | None, address: str | None) -> None:
         _start_local(workers)
     else:
         _join(address)
+    _stopping_signals_back_to_python()
 
 
 #: The token of the local Rays this process starts. Ray would write a new
@@ -146,6 +150,19 @@ def _join(address: str) -> None:
         detail = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
         raise ClusterError(f"mitsuba-whitted: could not join the Ray cluster at {address}: "
                            f"{detail}") from None
+
+
+def _stopping_signals_back_to_python() -> None:
+    """Ray's C++ core, once this process has joined, handles SIGTERM itself:
+    it prints a stack dump, then passes the signal on. The command says in
+    one line that it stopped (see :mod:`..interrupt`), so the stopping
+    signals go back to the handlers Python had."""
+    if threading.current_thread() is not threading.main_thread():
+        return  # Python sets handlers in its main thread only
+    for signum in STOPPING:
+        handler = signal.getsignal(signum)
+        if handler is not None:
+            signal.signal(signum, handler)
 
 
 class RayBackend:

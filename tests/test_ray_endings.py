@@ -1,0 +1,77 @@
+"""A command on Ray that a signal stops ends as it does without Ray: in the
+package's one line and exit code, with nothing of Ray's before it (its C++
+core's stack dump on SIGTERM)."""
+
+import contextlib
+import importlib.util
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from mitsuba_whitted.interrupt import exit_code, interrupted_line
+from validation.scenes import ROOT
+
+if importlib.util.find_spec("ray") is None:
+    pytest.skip("Ray is not installed (pip install 'mitsuba-whitted[cluster]')",
+                allow_module_level=True)
+
+GLASS = ROOT / "scenes" / "cases" / "glass_spheres.xml"
+#: Seconds any command of these tests may take.
+COMMAND_SECONDS = 300
+
+
+@contextlib.contextmanager
+def _running(*args):
+    """``mitsuba-whitted *args`` in a process of its own, its stderr in a
+    pipe; killed at the end of the block if it still runs."""
+    env = dict(os.environ)
+    env.pop("RAY_ADDRESS", None)
+    job = subprocess.Popen([sys.executable, "-m", "mitsuba_whitted.cli", *args], cwd=ROOT,
+                           env=env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                           stderr=subprocess.PIPE, text=True)
+    try:
+        yield job
+    finally:
+        if job.poll() is None:
+            job.kill()
+            job.wait()
+
+
+def _wait_for_a_render_task(job: subprocess.Popen) -> None:
+    """Until a worker of the local Ray that ``job`` started runs a render
+    task (Ray titles a worker's process with the function it runs)."""
+    import psutil
+
+    deadline = time.monotonic() + COMMAND_SECONDS
+    while job.poll() is None and time.monotonic() < deadline:
+        for process in psutil.Process(job.pid).children(recursive=True):
+            with contextlib.suppress(psutil.Error):
+                if " ".join(process.cmdline()).startswith("ray::render_remote"):
+                    return
+        time.sleep(0.05)
+    pytest.fail("no render task was seen running")
+
+
+def _stopped(job: subprocess.Popen, signum: int) -> str:
+    """Send ``signum`` to ``job``; all it wrote on stderr until it ended."""
+    job.send_signal(signum)
+    return job.communicate(timeout=60)[1]
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT, signal.SIGHUP],
+                         ids=["SIGTERM", "SIGINT", "SIGHUP"])
+def test_a_signal_during_a_job_on_a_local_ray_ends_in_one_line(tmp_path, signum):
+    """Ray's C++ core, once this process has joined, handles SIGTERM itself
+    (a stack dump, then the signal passed on); the command takes the
+    signals that stop it back."""
+    with _running("compare", str(GLASS), "--quick", "-D", "res=16", "--reference-spp", "4000000",
+                  "--out", str(tmp_path / "out"), "--workers", "2") as job:
+        _wait_for_a_render_task(job)
+        stderr = _stopped(job, signum)
+    assert job.returncode == exit_code(signum), stderr
+    assert stderr == interrupted_line("mitsuba-whitted", signum)
+
