@@ -2,6 +2,7 @@
 
 import os
 import re
+import resource
 import subprocess
 import sys
 
@@ -15,6 +16,7 @@ from conftest import SRGB_TO_XYZ, cli, one_line
 from mitsuba_whitted.cli import main, run_command
 from mitsuba_whitted.compare.scene_report import FOLDER_MARK
 from mitsuba_whitted.imageio import read_image, to_8bit, write_image
+from mitsuba_whitted.system import size_text
 from validation.scenes import REPORT_SCENE, ROOT
 
 
@@ -485,3 +487,64 @@ def test_no_command_writes_over_a_file_the_scene_reads(tmp_path, case):
                                 f"'{tmp_path / reader}' reads {read.format(tmp_path)}; "
                                 "choose another output.")
     assert {name: (tmp_path / name).read_bytes() for name in before} == before
+
+
+# ---------------------------------------------- a small address space
+
+def address_space(kib: int):
+    """``ulimit -v kib`` in the process about to start (``preexec_fn``)."""
+    return lambda: resource.setrlimit(resource.RLIMIT_AS, (kib << 10, kib << 10))
+
+
+@pytest.mark.parametrize("kib", [100_000, 400_000, 700_000])
+def test_an_address_space_too_small_to_start_is_one_sentence(tmp_path, kib):
+    """``ulimit -v``: the imports failed, in a different way at each size:
+    an ``ImportError`` that never said memory, a fatal error of Python's
+    exit (134), OpenBLAS's abort, a thread's ``std::bad_alloc``, a variant
+    'that cannot be used on this machine'."""
+    result = cli("render", str(REPORT_SCENE), "-o", str(tmp_path / "x.png"),
+                 preexec_fn=address_space(kib))
+    assert_one_sentence(result, f"mitsuba-whitted: the address-space limit of "
+                                f"{size_text(kib << 10)} (ulimit -v {kib}) is below the ")
+    assert result.stderr.endswith("; raise the limit or remove it.\n")
+    assert list(tmp_path.iterdir()) == []
+
+
+#: The command, in a process that lowers its address-space limit to what it
+#: has mapped (and 8 MiB) when it starts to import ``sys.argv[1]``: the
+#: import fails as under a limit that passes the check at the start.
+SQUEEZED = """
+import resource, sys
+
+module = sys.argv.pop(1)
+
+
+class Squeeze:
+    def find_spec(self, name, path, target=None):
+        if name == module:
+            status = open("/proc/self/status").read()
+            mapped = int(status.split("VmSize:")[1].split()[0]) << 10
+            resource.setrlimit(resource.RLIMIT_AS, (mapped + (8 << 20),) * 2)
+
+
+sys.meta_path.insert(0, Squeeze())
+sys.argv[0] = "mitsuba-whitted"
+from mitsuba_whitted.cli import main
+sys.exit(main())
+"""
+
+
+@pytest.mark.parametrize("module, library", [("drjit", "_drjit_ext"),
+                                             ("OpenImageIO", "libOpenImageIO")])
+def test_a_library_that_cannot_be_mapped_is_one_sentence(tmp_path, module, library):
+    """Dr.Jit's ``ImportError`` ended in a ``NameError`` (Dr.Jit goes on
+    after it) and a fatal error at Python's exit; the sentence names the
+    library and the limit."""
+    result = subprocess.run([sys.executable, "-c", SQUEEZED, module, "render",
+                             str(REPORT_SCENE), "-o", str(tmp_path / "x.png")],
+                            cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 2, result.stderr
+    assert re.fullmatch(rf"the process ran out of memory \({library}\S* could not be mapped\) "
+                        r"under the address-space limit of [\d.]+ MiB \(ulimit -v \d+\); raise "
+                        r"the limit or remove it\.", one_line(result.stderr)), result.stderr
+

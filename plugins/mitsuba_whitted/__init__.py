@@ -22,18 +22,17 @@ A usable libLLVM is chosen before Dr.Jit loads one (see :mod:`.llvm`), and
 (see :mod:`.checked_render`).
 """
 
-from __future__ import annotations
+# First, before any other import: in the command, Ctrl-C is handled from
+# here on (see .startup; no "from __future__" either, which imports a module).
+from . import startup
 
-import importlib
-import sys
+if startup.COMMAND:
+    startup.start()
 
-from . import interrupt, system
+import importlib  # noqa: E402  (after Ctrl-C is handled)
+import sys  # noqa: E402
 
-if interrupt.started_as("mitsuba_whitted.cli", "mitsuba-whitted"):
-    system.open_standard_streams()
-    interrupt.end_quietly_on_ctrl_c("mitsuba-whitted")
-
-from . import llvm  # noqa: E402  (after Ctrl-C is handled)
+from . import llvm  # noqa: E402
 from .errors import ParameterError  # noqa: E402,F401  (raised by every plugin's checks)
 
 __version__ = "0.1.0"

@@ -67,6 +67,31 @@ def available_memory() -> int | None:
     return min(candidates) if candidates else None
 
 
+def address_space_limit() -> int | None:
+    """The process's address-space limit in bytes (``ulimit -v``, which
+    counts every mapping: libraries, thread stacks, memory reserved and not
+    yet used), or ``None`` where there is none."""
+    import resource
+
+    limit = resource.getrlimit(resource.RLIMIT_AS)[0]
+    return None if limit == resource.RLIM_INFINITY else limit
+
+
+def describe_limit(limit: int) -> str:
+    """The address-space limit as a sentence names it, also as ``ulimit
+    -v`` takes it (in KiB)."""
+    return f"the address-space limit of {size_text(limit)} (ulimit -v {limit >> 10})"
+
+
+def size_text(size: int) -> str:
+    """A size in bytes as a sentence says it: "3.0 MiB", "832 MiB", "112 GiB"."""
+    for unit, scale in (("GiB", 1 << 30), ("MiB", 1 << 20), ("KiB", 1 << 10)):
+        if size >= scale:
+            value = size / scale
+            return f"{value:.1f} {unit}" if value < 10 else f"{value:.0f} {unit}"
+    return f"{size} bytes"
+
+
 def _read_int(path: str) -> int | None:
     """A file holding one integer (``max``, as cgroups write "no limit", and
     absent files are ``None``)."""
