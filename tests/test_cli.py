@@ -489,6 +489,63 @@ def test_no_command_writes_over_a_file_the_scene_reads(tmp_path, case):
     assert {name: (tmp_path / name).read_bytes() for name in before} == before
 
 
+# ------------------------------------------------ names that are not UTF-8
+
+#: A byte that is not UTF-8 in a file name, as Python decodes it
+#: (surrogateescape), and as the command shows it.
+NOT_UTF8, SHOWN = "\udcff", "\\xff"
+
+
+def shown(path) -> str:
+    return str(path).replace(NOT_UTF8, SHOWN)
+
+
+@pytest.mark.parametrize("command, scene", [
+    ("render", f"sc{NOT_UTF8}ene.xml"), ("render", f"f{NOT_UTF8}lder/scene.xml"),
+    ("render-many", f"sc{NOT_UTF8}ene.xml"), ("compare", f"sc{NOT_UTF8}ene.xml"),
+    ("bench", f"sc{NOT_UTF8}ene.xml")])
+def test_a_scene_path_that_is_not_utf8_is_one_sentence(tmp_path, command, scene):
+    """Mitsuba takes strings as UTF-8 only: its parser failed in nanobind's
+    type error (``bench``, whose first load Python reads, in its child
+    process after minutes of work). Nothing is written."""
+    scene = tmp_path / scene
+    scene.parent.mkdir(exist_ok=True)
+    scene.write_text(HOSTILE.format(body=""))
+    out = str(tmp_path / "out")
+    args = {"render": ["-o", f"{out}.png"], "render-many": ["--out", out],
+            "compare": ["--quick", "--out", out], "bench": ["--quick"]}[command]
+    result = cli(command, str(scene), *args)
+    assert_one_sentence(result, f"mitsuba-whitted: scene file '{shown(scene)}' has a path that "
+                                "is not UTF-8, which Mitsuba cannot open; rename it, or link to "
+                                "it under a UTF-8 name.")
+    assert sorted(tmp_path.rglob("*")) == sorted({scene, scene.parent} - {tmp_path})
+
+
+def test_a_define_that_is_not_utf8_is_one_sentence(tmp_path):
+    result = cli("render", str(REPORT_SCENE), "-o", str(tmp_path / "x.png"),
+                 "-D", f"res=1{NOT_UTF8}")
+    assert_one_sentence(result, f"mitsuba-whitted: -D res=1{SHOWN} is not UTF-8, which "
+                                "Mitsuba's parser cannot take.")
+
+
+@pytest.mark.parametrize("output", [f"o{NOT_UTF8}ut.png", f"o{NOT_UTF8}ut.exr",
+                                    f"f{NOT_UTF8}lder/x.jpg"])
+def test_an_output_path_that_is_not_utf8_is_written(tmp_path, output):
+    """The package writes the image itself, so it takes any name the
+    system takes: OpenImageIO's writer, which was given the name to choose
+    the format (a ``TypeError``), is now chosen by the extension. The line
+    on stdout, which Python refused to encode, shows the byte escaped."""
+    target = tmp_path / output
+    render = ("render", str(REPORT_SCENE), "-D", "res=16", "-D", "aa=none", "-o")
+    result = cli(*render, str(target), check=True)
+    assert result.stdout.startswith(f"{shown(target)}: 16x16 rendered and written in ")
+    reference = tmp_path / f"reference{target.suffix}"
+    cli(*render, str(reference), check=True)
+    copy = tmp_path / f"copy{target.suffix}"
+    copy.write_bytes(target.read_bytes())  # OpenImageIO cannot open the name itself
+    np.testing.assert_array_equal(read_image(copy), read_image(reference))
+
+
 # ---------------------------------------------- a small address space
 
 def address_space(kib: int):

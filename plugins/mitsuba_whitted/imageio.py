@@ -160,7 +160,10 @@ class _Encoder:
         import OpenImageIO as oiio
 
         self.oiio, self.path = oiio, path
-        self.out = oiio.ImageOutput.create(str(path))
+        # By the format's extension, which is ASCII (_known_format), not the
+        # path: OpenImageIO takes names as UTF-8 only, and it writes to
+        # memory here.
+        self.out = oiio.ImageOutput.create(path.suffix[1:])
         if self.out is None:
             raise cannot_write(path, f"OpenImageIO has no writer for it "
                                      f"({_oiio_reason(None, oiio)})")

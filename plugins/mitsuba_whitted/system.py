@@ -3,6 +3,7 @@ timings depend on."""
 
 from __future__ import annotations
 
+import codecs
 import os
 import platform
 import sys
@@ -104,21 +105,49 @@ def _read_int(path: str) -> int | None:
 
 #: The standard streams: their descriptors, names in ``sys`` and modes.
 STANDARD_STREAMS = ((0, "stdin", "r"), (1, "stdout", "w"), (2, "stderr", "w"))
+#: The error handler of the command's output streams (see :func:`_escaped`).
+ESCAPED = "mitsuba-whitted-escaped"
 
 
 def open_standard_streams() -> None:
     """/dev/null in place of a standard stream the command was started
-    without (``2>&-``). Python leaves ``sys.stderr`` ``None`` then, where
-    the progress display and the error sentence fail; and the next file
-    opened would take the free descriptor, so that what a library writes
-    to stderr would go into it (an image being written)."""
+    without (``2>&-``), and output streams that write any text, escaped
+    where they cannot encode it.
+
+    Python leaves ``sys.stderr`` ``None`` then, where the progress display
+    and the error sentence fail; and the next file opened would take the
+    free descriptor, so that what a library writes to stderr would go into
+    it (an image being written). And a path whose bytes are not UTF-8
+    (``$'out\\xff.png'``), which the sentences name, is text that Python's
+    stdout refuses to encode."""
     for descriptor, name, mode in STANDARD_STREAMS:
         try:
             os.fstat(descriptor)
         except OSError:
             to_null(descriptor)
         if getattr(sys, name) is None:
-            setattr(sys, name, open(descriptor, mode, closefd=False, errors="backslashreplace"))
+            setattr(sys, name, open(descriptor, mode, closefd=False))
+    for stream in (sys.stdout, sys.stderr):
+        stream.reconfigure(errors=ESCAPED)
+
+
+def shown(text: str) -> str:
+    """``text`` as the command writes it (see :func:`_escaped`)."""
+    return text.encode("utf-8", ESCAPED).decode("utf-8")
+
+
+def _escaped(error: UnicodeEncodeError) -> tuple[str, int]:
+    """Text that an encoding cannot take, as escapes: a byte that was not
+    UTF-8 in a file name (Python decodes it to a lone surrogate, U+DC80 to
+    U+DCFF) as ``\\xff``, as the user writes it in bash's ``$'...'``;
+    anything else as Python's ``backslashreplace`` writes it."""
+    escaped = "".join(f"\\x{ord(c) - 0xDC00:02x}" if 0xDC80 <= ord(c) <= 0xDCFF
+                      else c.encode("ascii", "backslashreplace").decode("ascii")
+                      for c in error.object[error.start:error.end])
+    return escaped, error.end
+
+
+codecs.register_error(ESCAPED, _escaped)
 
 
 def to_null(descriptor: int) -> None:
