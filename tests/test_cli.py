@@ -3,8 +3,10 @@
 import os
 import re
 import resource
+import struct
 import subprocess
 import sys
+import zlib
 
 import drjit as dr
 import mitsuba as mi
@@ -12,9 +14,12 @@ import numpy as np
 import OpenImageIO
 import pytest
 
+import mitsuba_whitted
 from conftest import SRGB_TO_XYZ, cli, one_line
+from mitsuba_whitted import imageio
 from mitsuba_whitted.cli import main, run_command
 from mitsuba_whitted.compare.scene_report import FOLDER_MARK
+from mitsuba_whitted.files import ReadError
 from mitsuba_whitted.imageio import read_image, to_8bit, write_image
 from mitsuba_whitted.system import size_text
 from validation.scenes import REPORT_SCENE, ROOT
@@ -605,3 +610,76 @@ def test_a_library_that_cannot_be_mapped_is_one_sentence(tmp_path, module, libra
                         r"under the address-space limit of [\d.]+ MiB \(ulimit -v \d+\); raise "
                         r"the limit or remove it\.", one_line(result.stderr)), result.stderr
 
+
+# ------------------------------------------- images larger than memory
+
+def declaring_png(path, width: int, height: int, padding: int = 0):
+    """A valid 4 x 4 PNG whose header is made to declare ``width`` x
+    ``height`` pixels (its IHDR chunk's CRC computed again), followed by
+    ``padding`` bytes of a private ancillary chunk that readers skip."""
+    write_image(path, np.zeros((4, 4, 3), np.float32))
+    data = bytearray(path.read_bytes())
+    assert data[12:16] == b"IHDR"
+    data[16:24] = struct.pack(">II", width, height)
+    data[29:33] = struct.pack(">I", zlib.crc32(data[12:29]))
+    if padding:
+        body = b"zzZz" + bytes(padding)
+        data[33:33] = struct.pack(">I", padding) + body + struct.pack(">I", zlib.crc32(body))
+    path.write_bytes(data)
+    return path
+
+
+def textured(image: str, mapping: str = "") -> str:
+    """A sphere whose phong BSDF reads ``image`` through a ``bitmap``,
+    nested in the package's ``mapping`` texture if one is given."""
+    bitmap = f'<texture type="bitmap" name="{"texture" if mapping else "diffuse_reflectance"}">' \
+             f'<string name="filename" value="{image}"/></texture>'
+    if mapping:
+        bitmap = f'<texture type="{mapping}" name="diffuse_reflectance">{bitmap}</texture>'
+    return f'<shape type="sphere"><bsdf type="phong">{bitmap}</bsdf></shape>'
+
+
+@pytest.mark.parametrize("case", ["implausible", "beyond-memory", "sphere_map"])
+def test_an_image_declaring_more_pixels_than_memory_is_one_sentence(tmp_path, case):
+    """A PNG whose header declares 100000 x 100000 pixels ended the render
+    in Mitsuba's ``std::bad_alloc``. One with a file that small is refused
+    as OpenImageIO refuses it (it cannot hold what it declares); one padded
+    until it could (8 MiB of the 67 GB it declares) is refused by its size
+    against the memory available, before Mitsuba allocates anything."""
+    size, padding = (100_000, 0) if case == "implausible" else (150_000, 8 << 20)
+    image = declaring_png(tmp_path / "wall.png", size, size, padding)
+    scene = tmp_path / "scene.xml"
+    mapping = "sphere_map" if case == "sphere_map" else ""
+    scene.write_text(HOSTILE.format(body=textured("wall.png", mapping)))
+    result = cli("render", str(scene), "-o", str(tmp_path / "x.png"))
+    reason = ("OpenImageIO cannot read it (png header claims a 28610 MB image from a "
+              if case == "implausible" else
+              "its header declares 150000 x 150000 pixels of 3 channels, 251 GiB as float32, "
+              "and ")
+    assert_one_sentence(result, f"bitmap: parameter 'filename' names '{image}': {reason}")
+    assert f"at {scene} (line " in result.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.xml", "wall.png"]
+
+
+def test_an_image_that_fits_is_read_and_one_that_does_not_is_refused(tmp_path, monkeypatch):
+    """The same check where the package reads images itself, and in the
+    Python API's ``load_file``, against the memory the system reports."""
+    texture = ROOT / "textures" / "lemons.png"  # 512 x 512 RGB: 3.0 MiB as float32
+    scene = tmp_path / "scene.xml"
+    scene.write_text(HOSTILE.format(body=textured(str(texture), "sphere_map")))
+    monkeypatch.setattr(imageio, "available_memory", lambda: 3 << 20)
+    assert read_image(texture).shape == (512, 512, 3)
+    mitsuba_whitted.load_file(scene)
+    monkeypatch.setattr(imageio, "available_memory", lambda: (3 << 20) - 1)
+    with pytest.raises(ReadError):
+        read_image(texture)
+    monkeypatch.setattr(imageio, "available_memory", lambda: 2 << 20)
+    with pytest.raises(ReadError, match=re.escape(
+            f"mitsuba-whitted: cannot read '{texture}': its header declares 512 x 512 pixels of "
+            "3 channels, 3.0 MiB as float32, and 2.0 MiB of memory are available.")):
+        read_image(texture)
+    with pytest.raises(mitsuba_whitted.ParameterError, match=re.escape(
+            f"bitmap: parameter 'filename' names '{texture}': its header declares 512 x 512 "
+            f"pixels of 3 channels, 3.0 MiB as float32, and 2.0 MiB of memory are available; "
+            f"at {scene} (line ")):
+        mitsuba_whitted.load_file(scene)

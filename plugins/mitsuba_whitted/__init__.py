@@ -56,7 +56,7 @@ llvm.configure()
 import mitsuba as mi  # noqa: E402  (after the libLLVM choice)
 
 from .checked_render import checked  # noqa: E402
-from .scene_files import check_films, parse  # noqa: E402
+from .scene_files import check_films, check_images, parse  # noqa: E402
 
 
 def _register_plugins(variant: str | None) -> None:
@@ -117,8 +117,11 @@ def load_file(path: str, **defines):
     differently from run to run (a cube of six rectangles did); both are
     off here. Ray counts and render times of ``scenes/cosc363.xml`` are the
     same either way. A film without pixels is refused by name
-    (:func:`.scene_files.check_films`)."""
-    check_films(parse(path, defines))
+    (:func:`.scene_files.check_films`), and so is an image whose pixels
+    would not fit in memory (:func:`.scene_files.check_images`)."""
+    state = parse(path, defines)
+    check_films(state)
+    check_images(state, path)
     return mi.load_file(str(path), parallel=False, optimize=False, **defines)
 
 
