@@ -16,7 +16,7 @@ import pytest
 
 import mitsuba_whitted
 from conftest import SRGB_TO_XYZ, cli, one_line
-from mitsuba_whitted import imageio
+from mitsuba_whitted import imageio, startup
 from mitsuba_whitted.cli import main, run_command
 from mitsuba_whitted.compare.scene_report import FOLDER_MARK
 from mitsuba_whitted.files import ReadError
@@ -659,6 +659,25 @@ def test_an_image_declaring_more_pixels_than_memory_is_one_sentence(tmp_path, ca
     assert_one_sentence(result, f"bitmap: parameter 'filename' names '{image}': {reason}")
     assert f"at {scene} (line " in result.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.xml", "wall.png"]
+
+
+def test_an_image_beyond_the_address_space_limit_is_refused_naming_the_limit(tmp_path):
+    """Under ``ulimit -v`` (above what the command needs to start), an
+    image that fits in the machine's memory and not under the limit ended
+    the render in a Dr.Jit worker's segmentation fault: the memory
+    available is what the limit leaves."""
+    kib = (startup.BASE_ADDRESS_SPACE + startup.THREAD_ADDRESS_SPACE * os.cpu_count()
+           + (512 << 20)) >> 10
+    side = int(((kib << 10) * 2 / 12) ** 0.5)  # twice the limit as float32 RGB
+    image = declaring_png(tmp_path / "wall.png", side, side, padding=side * side * 3 // 10000)
+    scene = tmp_path / "scene.xml"
+    scene.write_text(HOSTILE.format(body=textured("wall.png")))
+    result = cli("render", str(scene), "-o", str(tmp_path / "x.png"),
+                 preexec_fn=address_space(kib))
+    assert_one_sentence(result, f"bitmap: parameter 'filename' names '{image}': its header "
+                                f"declares {side} x {side} pixels of 3 channels, ")
+    assert (f"of memory are available under the address-space limit of {size_text(kib << 10)} "
+            f"(ulimit -v {kib}); at {scene} (line ") in result.stderr
 
 
 def test_an_image_that_fits_is_read_and_one_that_does_not_is_refused(tmp_path, monkeypatch):

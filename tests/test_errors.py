@@ -77,7 +77,11 @@ def test_other_classes_keep_their_name():
                   "\"perspective\": [PluginManager] Error while loading plugin "
                   "\"/x/perspective.so\": /x/perspective.so: failed to map segment from shared "
                   "object."), "perspective.so could not be mapped"),
-], ids=["MemoryError", "ENOMEM", "unmapped-plugin"])
+    (RuntimeError("[parser.cpp:1718] At scene.xml (line 10, col 14): failed to instantiate "
+                  "texture plugin of type \"bitmap\": std::bad_alloc"),
+     "At scene.xml (line 10, col 14): failed to instantiate texture plugin of type "
+     "\"bitmap\": std::bad_alloc"),
+], ids=["MemoryError", "ENOMEM", "unmapped-plugin", "bad_alloc-in-plugin"])
 def test_memory_that_runs_out_is_one_sentence_naming_the_address_space_limit(monkeypatch, error,
                                                                           detail):
     """Under ``ulimit -v`` the address space, not the machine's memory, is

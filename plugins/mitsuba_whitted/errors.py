@@ -108,15 +108,19 @@ def one_sentence(error: BaseException) -> str:
 #: The dynamic loader's message for a library it could not map into the
 #: address space, and the library's file name.
 _UNMAPPED = re.compile(r"([^/\s:]+): failed to map segment")
+#: C++'s failed allocation in the message of an error that wraps it
+#: (Mitsuba's, for a plugin that could not be made).
+_BAD_ALLOC = "std::bad_alloc"
 
 
 def _is_out_of_memory(error: BaseException) -> bool:
     """Whether ``error`` says that memory could not be had: Python's
     ``MemoryError`` (also C++'s ``std::bad_alloc``, which nanobind turns
-    into one), the system's ENOMEM, and the dynamic loader's failure to map
-    a library (an ``ImportError``, or Mitsuba's error on loading a plugin)."""
+    into one, or which Mitsuba names in its own error), the system's
+    ENOMEM, and the dynamic loader's failure to map a library (an
+    ``ImportError``, or Mitsuba's error on loading a plugin)."""
     return (isinstance(error, MemoryError) or getattr(error, "errno", None) == errno.ENOMEM
-            or _UNMAPPED.search(str(error)) is not None)
+            or _BAD_ALLOC in str(error) or _UNMAPPED.search(str(error)) is not None)
 
 
 def _out_of_memory(error: BaseException) -> str:
@@ -124,7 +128,8 @@ def _out_of_memory(error: BaseException) -> str:
     address-space limit: that limit, not the machine's memory, is then what
     runs out first."""
     unmapped = _UNMAPPED.search(str(error))
-    detail = f"{unmapped.group(1)} could not be mapped" if unmapped else str(error).strip()
+    detail = (f"{unmapped.group(1)} could not be mapped" if unmapped
+              else _SOURCE_LOCATION.sub("", str(error)).strip())
     detail = f" ({detail})" if detail else ""
     limit = address_space_limit()
     if limit is None:

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from .files import ReadError, WriteError, cannot_write, check_writable, write_atomically
-from .system import available_memory, size_text
+from .system import available_memory, available_text, size_text
 
 HDR_SUFFIXES = {".exr", ".hdr", ".pfm"}
 LDR_SUFFIXES = {".png", ".jpg", ".jpeg"}
@@ -267,8 +267,7 @@ def too_large(spec, available: int | None) -> str | None:
     if available is None or needed <= available:
         return None
     return (f"its header declares {spec.width} x {spec.height} pixels of {spec.nchannels} "
-            f"channels, {size_text(needed)} as float32, and {size_text(available)} of "
-            "memory are available")
+            f"channels, {size_text(needed)} as float32, and {available_text(available)}")
 
 
 @contextmanager

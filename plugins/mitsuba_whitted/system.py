@@ -57,7 +57,8 @@ CGROUP_LIMITS = (("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory.current"),
 def available_memory() -> int | None:
     """Bytes this process can still allocate: the kernel's estimate of
     memory available without swapping (``MemAvailable``), or less where a
-    cgroup limit leaves less. ``None`` where Linux does not say."""
+    cgroup limit or the address-space limit (``ulimit -v``) leaves less.
+    ``None`` where Linux does not say."""
     available = proc_field(MEMINFO, "MemAvailable")  # "1234 kB"
     candidates = [int(available.split()[0]) * 1024] if available else []
     for limit_path, usage_path in CGROUP_LIMITS:
@@ -65,7 +66,19 @@ def available_memory() -> int | None:
         if limit is not None and usage is not None:
             candidates.append(max(limit - usage, 0))
             break
+    left = address_space_left()
+    if left is not None:
+        candidates.append(left)
     return min(candidates) if candidates else None
+
+
+def available_text(available: int) -> str:
+    """What a sentence says of ``available`` bytes (see
+    :func:`available_memory`), naming the address-space limit where there
+    is one: a process under it can have far less than the machine has."""
+    limit = address_space_limit()
+    under = f" under {describe_limit(limit)}" if limit is not None else ""
+    return f"{size_text(available)} of memory are available{under}"
 
 
 def address_space_limit() -> int | None:
@@ -76,6 +89,18 @@ def address_space_limit() -> int | None:
 
     limit = resource.getrlimit(resource.RLIMIT_AS)[0]
     return None if limit == resource.RLIM_INFINITY else limit
+
+
+def address_space_left() -> int | None:
+    """Bytes of address space the process can still map under its limit
+    (``None`` where there is no limit, or Linux does not say): what a
+    failed allocation there ends in is not always an exception (a Dr.Jit
+    worker thread's segmentation fault)."""
+    limit = address_space_limit()
+    mapped = proc_field("/proc/self/status", "VmSize")  # "1234 kB"
+    if limit is None or mapped is None:
+        return None
+    return max(limit - int(mapped.split()[0]) * 1024, 0)
 
 
 def describe_limit(limit: int) -> str:
