@@ -632,8 +632,9 @@ def declaring_png(path, width: int, height: int, padding: int = 0):
 def textured(image: str, mapping: str = "") -> str:
     """A sphere whose phong BSDF reads ``image`` through a ``bitmap``,
     nested in the package's ``mapping`` texture if one is given."""
-    bitmap = f'<texture type="bitmap" name="{"texture" if mapping else "diffuse_reflectance"}">' \
-             f'<string name="filename" value="{image}"/></texture>'
+    name = "texture" if mapping else "diffuse_reflectance"
+    bitmap = (f'<texture type="bitmap" name="{name}">'
+              f'<string name="filename" value="{image}"/></texture>')
     if mapping:
         bitmap = f'<texture type="{mapping}" name="diffuse_reflectance">{bitmap}</texture>'
     return f'<shape type="sphere"><bsdf type="phong">{bitmap}</bsdf></shape>'

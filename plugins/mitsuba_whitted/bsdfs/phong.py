@@ -157,7 +157,9 @@ class Phong(mi.BSDF):
     def _name(self) -> str:
         """How a sentence names this BSDF: by its id, if the scene gave one."""
         name = self.id()
-        return f"bsdf '{name}'" if name and not name.startswith("_unnamed") else "a bsdf without an id"
+        if name and not name.startswith("_unnamed"):
+            return f"bsdf '{name}'"
+        return "a bsdf without an id"
 
     # -- Evaluation ---------------------------------------------------------
 
