@@ -48,13 +48,15 @@ def address(array) -> int:
     return np.from_dlpack(array).ctypes.data
 
 
-def cli(*args, env=None, check=False, timeout=600, module="mitsuba_whitted.cli"):
+def cli(*args, env=None, check=False, timeout=600, module="mitsuba_whitted.cli",
+        preexec_fn=None):
     """``mitsuba-whitted *args`` (or ``python -m module *args``) in a
-    process of its own, started in the repository's root; its output as
-    text."""
+    process of its own, started in the repository's root (``preexec_fn``
+    runs in it first, as for ``subprocess.run``); its output as text, bytes
+    that are not UTF-8 as Python decodes file names."""
     return subprocess.run([sys.executable, "-m", module, *args], cwd=ROOT,
                           env=env, capture_output=True, text=True, check=check,
-                          timeout=timeout)
+                          timeout=timeout, preexec_fn=preexec_fn, errors="surrogateescape")
 
 
 def one_line(stderr: str) -> str:

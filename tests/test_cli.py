@@ -2,8 +2,11 @@
 
 import os
 import re
+import resource
+import struct
 import subprocess
 import sys
+import zlib
 
 import drjit as dr
 import mitsuba as mi
@@ -11,10 +14,14 @@ import numpy as np
 import OpenImageIO
 import pytest
 
+import mitsuba_whitted
 from conftest import SRGB_TO_XYZ, cli, one_line
+from mitsuba_whitted import imageio, startup
 from mitsuba_whitted.cli import main, run_command
 from mitsuba_whitted.compare.scene_report import FOLDER_MARK
+from mitsuba_whitted.files import ReadError
 from mitsuba_whitted.imageio import read_image, to_8bit, write_image
+from mitsuba_whitted.system import size_text
 from validation.scenes import REPORT_SCENE, ROOT
 
 
@@ -485,3 +492,214 @@ def test_no_command_writes_over_a_file_the_scene_reads(tmp_path, case):
                                 f"'{tmp_path / reader}' reads {read.format(tmp_path)}; "
                                 "choose another output.")
     assert {name: (tmp_path / name).read_bytes() for name in before} == before
+
+
+# ------------------------------------------------ names that are not UTF-8
+
+#: A byte that is not UTF-8 in a file name, as Python decodes it
+#: (surrogateescape), and as the command shows it.
+NOT_UTF8, SHOWN = "\udcff", "\\xff"
+
+
+def shown(path) -> str:
+    return str(path).replace(NOT_UTF8, SHOWN)
+
+
+@pytest.mark.parametrize("command, scene", [
+    ("render", f"sc{NOT_UTF8}ene.xml"), ("render", f"f{NOT_UTF8}lder/scene.xml"),
+    ("render-many", f"sc{NOT_UTF8}ene.xml"), ("compare", f"sc{NOT_UTF8}ene.xml"),
+    ("bench", f"sc{NOT_UTF8}ene.xml")])
+def test_a_scene_path_that_is_not_utf8_is_one_sentence(tmp_path, command, scene):
+    """Mitsuba takes strings as UTF-8 only: its parser failed in nanobind's
+    type error (``bench``, whose first load Python reads, in its child
+    process after minutes of work). Nothing is written."""
+    scene = tmp_path / scene
+    scene.parent.mkdir(exist_ok=True)
+    scene.write_text(HOSTILE.format(body=""))
+    out = str(tmp_path / "out")
+    args = {"render": ["-o", f"{out}.png"], "render-many": ["--out", out],
+            "compare": ["--quick", "--out", out], "bench": ["--quick"]}[command]
+    result = cli(command, str(scene), *args)
+    assert_one_sentence(result, f"mitsuba-whitted: scene file '{shown(scene)}' has a path that "
+                                "is not UTF-8, which Mitsuba cannot open; rename it, or link to "
+                                "it under a UTF-8 name.")
+    assert sorted(tmp_path.rglob("*")) == sorted({scene, scene.parent} - {tmp_path})
+
+
+def test_a_define_that_is_not_utf8_is_one_sentence(tmp_path):
+    result = cli("render", str(REPORT_SCENE), "-o", str(tmp_path / "x.png"),
+                 "-D", f"res=1{NOT_UTF8}")
+    assert_one_sentence(result, f"mitsuba-whitted: -D res=1{SHOWN} is not UTF-8, which "
+                                "Mitsuba's parser cannot take.")
+
+
+@pytest.mark.parametrize("output", [f"o{NOT_UTF8}ut.png", f"o{NOT_UTF8}ut.exr",
+                                    f"f{NOT_UTF8}lder/x.jpg"])
+def test_an_output_path_that_is_not_utf8_is_written(tmp_path, output):
+    """The package writes the image itself, so it takes any name the
+    system takes: OpenImageIO's writer, which was given the name to choose
+    the format (a ``TypeError``), is now chosen by the extension. The line
+    on stdout, which Python refused to encode, shows the byte escaped."""
+    target = tmp_path / output
+    render = ("render", str(REPORT_SCENE), "-D", "res=16", "-D", "aa=none", "-o")
+    result = cli(*render, str(target), check=True)
+    assert result.stdout.startswith(f"{shown(target)}: 16x16 rendered and written in ")
+    reference = tmp_path / f"reference{target.suffix}"
+    cli(*render, str(reference), check=True)
+    copy = tmp_path / f"copy{target.suffix}"
+    copy.write_bytes(target.read_bytes())  # OpenImageIO cannot open the name itself
+    np.testing.assert_array_equal(read_image(copy), read_image(reference))
+
+
+# ---------------------------------------------- a small address space
+
+def address_space(kib: int):
+    """``ulimit -v kib`` in the process about to start (``preexec_fn``)."""
+    return lambda: resource.setrlimit(resource.RLIMIT_AS, (kib << 10, kib << 10))
+
+
+@pytest.mark.parametrize("kib", [100_000, 400_000, 700_000])
+def test_an_address_space_too_small_to_start_is_one_sentence(tmp_path, kib):
+    """``ulimit -v``: the imports failed, in a different way at each size:
+    an ``ImportError`` that never said memory, a fatal error of Python's
+    exit (134), OpenBLAS's abort, a thread's ``std::bad_alloc``, a variant
+    'that cannot be used on this machine'."""
+    result = cli("render", str(REPORT_SCENE), "-o", str(tmp_path / "x.png"),
+                 preexec_fn=address_space(kib))
+    assert_one_sentence(result, f"mitsuba-whitted: the address-space limit of "
+                                f"{size_text(kib << 10)} (ulimit -v {kib}) is below the ")
+    assert result.stderr.endswith("; raise the limit or remove it.\n")
+    assert list(tmp_path.iterdir()) == []
+
+
+#: The command, in a process that lowers its address-space limit to what it
+#: has mapped (and 8 MiB) when it starts to import ``sys.argv[1]``: the
+#: import fails as under a limit that passes the check at the start.
+SQUEEZED = """
+import resource, sys
+
+module = sys.argv.pop(1)
+
+
+class Squeeze:
+    def find_spec(self, name, path, target=None):
+        if name == module:
+            status = open("/proc/self/status").read()
+            mapped = int(status.split("VmSize:")[1].split()[0]) << 10
+            resource.setrlimit(resource.RLIMIT_AS, (mapped + (8 << 20),) * 2)
+
+
+sys.meta_path.insert(0, Squeeze())
+sys.argv[0] = "mitsuba-whitted"
+from mitsuba_whitted.cli import main
+sys.exit(main())
+"""
+
+
+@pytest.mark.parametrize("module, library", [("drjit", "_drjit_ext"),
+                                             ("OpenImageIO", "libOpenImageIO")])
+def test_a_library_that_cannot_be_mapped_is_one_sentence(tmp_path, module, library):
+    """Dr.Jit's ``ImportError`` ended in a ``NameError`` (Dr.Jit goes on
+    after it) and a fatal error at Python's exit; the sentence names the
+    library and the limit."""
+    result = subprocess.run([sys.executable, "-c", SQUEEZED, module, "render",
+                             str(REPORT_SCENE), "-o", str(tmp_path / "x.png")],
+                            cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 2, result.stderr
+    assert re.fullmatch(rf"the process ran out of memory \({library}\S* could not be mapped\) "
+                        r"under the address-space limit of [\d.]+ MiB \(ulimit -v \d+\); raise "
+                        r"the limit or remove it\.", one_line(result.stderr)), result.stderr
+
+
+# ------------------------------------------- images larger than memory
+
+def declaring_png(path, width: int, height: int, padding: int = 0):
+    """A valid 4 x 4 PNG whose header is made to declare ``width`` x
+    ``height`` pixels (its IHDR chunk's CRC computed again), followed by
+    ``padding`` bytes of a private ancillary chunk that readers skip."""
+    write_image(path, np.zeros((4, 4, 3), np.float32))
+    data = bytearray(path.read_bytes())
+    assert data[12:16] == b"IHDR"
+    data[16:24] = struct.pack(">II", width, height)
+    data[29:33] = struct.pack(">I", zlib.crc32(data[12:29]))
+    if padding:
+        body = b"zzZz" + bytes(padding)
+        data[33:33] = struct.pack(">I", padding) + body + struct.pack(">I", zlib.crc32(body))
+    path.write_bytes(data)
+    return path
+
+
+def textured(image: str, mapping: str = "") -> str:
+    """A sphere whose phong BSDF reads ``image`` through a ``bitmap``,
+    nested in the package's ``mapping`` texture if one is given."""
+    name = "texture" if mapping else "diffuse_reflectance"
+    bitmap = (f'<texture type="bitmap" name="{name}">'
+              f'<string name="filename" value="{image}"/></texture>')
+    if mapping:
+        bitmap = f'<texture type="{mapping}" name="diffuse_reflectance">{bitmap}</texture>'
+    return f'<shape type="sphere"><bsdf type="phong">{bitmap}</bsdf></shape>'
+
+
+@pytest.mark.parametrize("case", ["implausible", "beyond-memory", "sphere_map"])
+def test_an_image_declaring_more_pixels_than_memory_is_one_sentence(tmp_path, case):
+    """A PNG whose header declares 100000 x 100000 pixels ended the render
+    in Mitsuba's ``std::bad_alloc``. One with a file that small is refused
+    as OpenImageIO refuses it (it cannot hold what it declares); one padded
+    until it could (8 MiB of the 67 GB it declares) is refused by its size
+    against the memory available, before Mitsuba allocates anything."""
+    size, padding = (100_000, 0) if case == "implausible" else (150_000, 8 << 20)
+    image = declaring_png(tmp_path / "wall.png", size, size, padding)
+    scene = tmp_path / "scene.xml"
+    mapping = "sphere_map" if case == "sphere_map" else ""
+    scene.write_text(HOSTILE.format(body=textured("wall.png", mapping)))
+    result = cli("render", str(scene), "-o", str(tmp_path / "x.png"))
+    reason = ("OpenImageIO cannot read it (png header claims a 28610 MB image from a "
+              if case == "implausible" else
+              "its header declares 150000 x 150000 pixels of 3 channels, 251 GiB as float32, "
+              "and ")
+    assert_one_sentence(result, f"bitmap: parameter 'filename' names '{image}': {reason}")
+    assert f"at {scene} (line " in result.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.xml", "wall.png"]
+
+
+def test_an_image_beyond_the_address_space_limit_is_refused_naming_the_limit(tmp_path):
+    """Under ``ulimit -v`` (above what the command needs to start), an
+    image that fits in the machine's memory and not under the limit ended
+    the render in a Dr.Jit worker's segmentation fault: the memory
+    available is what the limit leaves."""
+    kib = (startup.BASE_ADDRESS_SPACE + startup.THREAD_ADDRESS_SPACE * os.cpu_count()
+           + (512 << 20)) >> 10
+    side = int(((kib << 10) * 2 / 12) ** 0.5)  # twice the limit as float32 RGB
+    image = declaring_png(tmp_path / "wall.png", side, side, padding=side * side * 3 // 10000)
+    scene = tmp_path / "scene.xml"
+    scene.write_text(HOSTILE.format(body=textured("wall.png")))
+    result = cli("render", str(scene), "-o", str(tmp_path / "x.png"),
+                 preexec_fn=address_space(kib))
+    assert_one_sentence(result, f"bitmap: parameter 'filename' names '{image}': its header "
+                                f"declares {side} x {side} pixels of 3 channels, ")
+    assert (f"of memory are available under the address-space limit of {size_text(kib << 10)} "
+            f"(ulimit -v {kib}); at {scene} (line ") in result.stderr
+
+
+def test_an_image_that_fits_is_read_and_one_that_does_not_is_refused(tmp_path, monkeypatch):
+    """The same check where the package reads images itself, and in the
+    Python API's ``load_file``, against the memory the system reports."""
+    texture = ROOT / "textures" / "lemons.png"  # 512 x 512 RGB: 3.0 MiB as float32
+    scene = tmp_path / "scene.xml"
+    scene.write_text(HOSTILE.format(body=textured(str(texture), "sphere_map")))
+    monkeypatch.setattr(imageio, "available_memory", lambda: 3 << 20)
+    assert read_image(texture).shape == (512, 512, 3)
+    mitsuba_whitted.load_file(scene)
+    monkeypatch.setattr(imageio, "available_memory", lambda: (3 << 20) - 1)
+    with pytest.raises(ReadError):
+        read_image(texture)
+    monkeypatch.setattr(imageio, "available_memory", lambda: 2 << 20)
+    with pytest.raises(ReadError, match=re.escape(
+            f"mitsuba-whitted: cannot read '{texture}': its header declares 512 x 512 pixels of "
+            "3 channels, 3.0 MiB as float32, and 2.0 MiB of memory are available.")):
+        read_image(texture)
+    with pytest.raises(mitsuba_whitted.ParameterError, match=re.escape(
+            f"bitmap: parameter 'filename' names '{texture}': its header declares 512 x 512 "
+            f"pixels of 3 channels, 3.0 MiB as float32, and 2.0 MiB of memory are available; "
+            f"at {scene} (line ")):
+        mitsuba_whitted.load_file(scene)

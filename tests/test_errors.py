@@ -2,12 +2,14 @@
 sentence, without the class's name before it."""
 
 import ast
+import errno
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
+from mitsuba_whitted import errors
 from mitsuba_whitted.errors import one_sentence
 
 PACKAGE = Path(__file__).resolve().parent.parent / "plugins" / "mitsuba_whitted"
@@ -66,3 +68,27 @@ def test_a_usage_error_of_a_command_run_as_a_module_is_its_own_sentence(tmp_path
 
 def test_other_classes_keep_their_name():
     assert one_sentence(KeyError("a")) == "KeyError: 'a'."
+
+
+@pytest.mark.parametrize("error, detail", [
+    (MemoryError("Unable to allocate 8.00 GiB"), "Unable to allocate 8.00 GiB"),
+    (OSError(errno.ENOMEM, "Cannot allocate memory"), "[Errno 12] Cannot allocate memory"),
+    (RuntimeError("At scene.xml (line 3, col 5): failed to instantiate sensor plugin of type "
+                  "\"perspective\": [PluginManager] Error while loading plugin "
+                  "\"/x/perspective.so\": /x/perspective.so: failed to map segment from shared "
+                  "object."), "perspective.so could not be mapped"),
+    (RuntimeError("[parser.cpp:1718] At scene.xml (line 10, col 14): failed to instantiate "
+                  "texture plugin of type \"bitmap\": std::bad_alloc"),
+     "At scene.xml (line 10, col 14): failed to instantiate texture plugin of type "
+     "\"bitmap\": std::bad_alloc"),
+], ids=["MemoryError", "ENOMEM", "unmapped-plugin", "bad_alloc-in-plugin"])
+def test_memory_that_runs_out_is_one_sentence_naming_the_address_space_limit(monkeypatch, error,
+                                                                          detail):
+    """Under ``ulimit -v`` the address space, not the machine's memory, is
+    what runs out: the sentence says so, and what the limit is."""
+    monkeypatch.setattr(errors, "address_space_limit", lambda: 1 << 30)
+    assert one_sentence(error) == (f"the process ran out of memory ({detail}) under the "
+                                   "address-space limit of 1.0 GiB (ulimit -v 1048576); raise "
+                                   "the limit or remove it.")
+    monkeypatch.setattr(errors, "address_space_limit", lambda: None)
+    assert one_sentence(error) == f"the machine ran out of memory ({detail})."

@@ -11,6 +11,7 @@ import fcntl
 import hashlib
 import os
 import pty
+import re
 import select
 import signal
 import subprocess
@@ -18,6 +19,7 @@ import sys
 import termios
 import time
 import tty
+from pathlib import Path
 
 import drjit as dr
 import mitsuba as mi
@@ -285,6 +287,49 @@ def test_ctrl_c_while_the_command_starts(tmp_path, after):
     _, stderr = process.communicate(timeout=60)
     assert process.returncode == 130, stderr
     assert stderr == "mitsuba-whitted: interrupted.\n"
+    assert list(tmp_path.iterdir()) == []
+
+
+#: Delays (seconds) of SIGINT after the package's first module has loaded.
+EARLY = (0, 0.005, 0.01, 0.025, 0.05, 0.1, 0.2)
+
+
+def interrupted_early(command, delay):
+    """Run ``python -X importtime command`` and send SIGINT ``delay``
+    seconds after Python reports the first module of the package loaded
+    (the first of the package's code has then run); its exit code and its
+    stderr without the import times."""
+    process = subprocess.Popen([sys.executable, "-X", "importtime", *command], cwd=ROOT,
+                               stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                               stderr=subprocess.PIPE)
+    try:
+        for line in process.stderr:
+            if re.search(rb"\|\s+mitsuba_whitted", line):
+                break
+        time.sleep(delay)
+        process.send_signal(signal.SIGINT)
+        _, rest = process.communicate(timeout=60)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    said = [line for line in rest.decode(errors="replace").splitlines(keepends=True)
+            if not line.startswith("import time:")]
+    return process.returncode, "".join(said)
+
+
+@pytest.mark.parametrize("form", ["console script", "python -m"])
+def test_ctrl_c_in_the_first_milliseconds_is_one_line(tmp_path, form):
+    """Ctrl-C while the command starts, from its package's first module on:
+    a signal during the package's first imports (``signal``'s ``enum``,
+    ``platform``), before the command's handler was in place, ended in a
+    traceback and Python's death by SIGINT. A signal before that, while
+    Python itself starts, ends as Python ends (README, Reliability)."""
+    script = Path(sys.executable).with_name("mitsuba-whitted")
+    command = [str(script)] if form == "console script" else ["-m", "mitsuba_whitted.cli"]
+    command += ["render", str(REPORT_SCENE), "-D", "res=16", "-o", str(tmp_path / "x.png")]
+    endings = {(delay, *interrupted_early(command, delay)) for delay in EARLY for _ in range(3)}
+    assert {ending for ending in endings
+            if ending[1:] != (130, "mitsuba-whitted: interrupted.\n")} == set()
     assert list(tmp_path.iterdir()) == []
 
 

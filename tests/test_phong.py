@@ -3,6 +3,10 @@ of sample() against pdf(), a float64 numpy evaluation of the modified Phong
 formula, numerical quadrature, Mitsuba's own ``diffuse`` and ``checkerboard``
 plugins, and renders by Mitsuba's ``path`` and ``direct`` integrators."""
 
+import re
+from contextlib import contextmanager
+from fractions import Fraction
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
@@ -401,15 +405,77 @@ class _Recorder(mi.Appender):
         pass
 
 
-@pytest.mark.parametrize("rho_d, rho_s, warns", [
-    (0.8, 0.3, True), (0.7, 0.3, False), ([0.9, 0.2, 0.2], 0.2, True)])
-def test_warns_when_constant_reflectances_exceed_one(rho_d, rho_s, warns):
+@contextmanager
+def warnings_logged():
+    """The lines Mitsuba's log receives in the block."""
     logger = mi.logger()
     recorder = _Recorder()
     logger.add_appender(recorder)
     try:
-        phong(rho_d=rho_d, rho_s=rho_s)
+        yield recorder.lines
     finally:
         logger.remove_appender(recorder)
-    assert any("phong: diffuse_reflectance + specular_reflectance" in line
-               for line in recorder.lines) == warns
+
+
+def energy_warnings(lines):
+    return [line for line in lines if "phong: diffuse_reflectance + specular_reflectance" in line]
+
+
+#: Reflectances as written, just under, at and over a sum of 1 (some
+#: coloured); the oracle is their exact decimal sum.
+SUMS = [("0.8", "0.2"), ("0.7", "0.3"), ("0.5", "0.5"), ("0.1", "0.9"), ("0.79999995", "0.2"),
+        ("0.8", "0.2000001"), ("0.8", "0.3"), ("0.9999999", "0.0000002"), ("1", "0"),
+        ("0.9, 0.2, 0.2", "0.2"), ("0.9, 0.1, 0.1", "0.1, 0.5, 0.5"),
+        ("0.3, 0.6, 0.1", "0.7, 0.4000001, 0.2")]
+
+
+def exceeds_one(rho_d: str, rho_s: str) -> bool:
+    """Whether some channel's written reflectances sum to more than 1."""
+    channels = np.broadcast_arrays([Fraction(v) for v in rho_d.split(",")],
+                                   [Fraction(v) for v in rho_s.split(",")])
+    return any(d + s > 1 for d, s in zip(*channels))
+
+
+def phong_xml(rho_d: str, rho_s: str, name: str = "shiny") -> str:
+    return (f'<scene version="3.0.0"><bsdf type="phong" id="{name}">'
+            f'<rgb name="diffuse_reflectance" value="{rho_d}"/>'
+            f'<rgb name="specular_reflectance" value="{rho_s}"/></bsdf></scene>')
+
+
+@pytest.mark.parametrize("rho_d, rho_s", SUMS, ids=[f"{d}+{s}" for d, s in SUMS])
+def test_warns_only_when_the_reflectances_exceed_one(rho_d, rho_s):
+    """0.8 + 0.2 warned that it reached "1 > 1": in float32 the two are
+    0.800000012 + 0.200000003. The warning names the BSDF and shows the
+    sum over 1 as written and as a number visibly above 1."""
+    with warnings_logged() as lines:
+        mi.load_string(phong_xml(rho_d, rho_s))
+    warned = energy_warnings(lines)
+    assert bool(warned) == exceeds_one(rho_d, rho_s), warned
+    for line in warned:
+        shown = re.search(r"of bsdf 'shiny' reach ([\d.]+) \+ ([\d.]+) = ([\d.]+) > 1,", line)
+        assert shown, line
+        d, s, total = shown.groups()
+        assert d in rho_d.split(", ") and s in rho_s.split(", ") and float(total) > 1
+        assert Fraction(total) == round(Fraction(d) + Fraction(s), 7)
+
+
+def test_an_update_warns_by_name_only_past_one():
+    """Through ``mi.traverse``: as from XML."""
+    params = mi.traverse(mi.load_string(phong_xml("0.5", "0.2", name="ball_bsdf")))
+    updates = [(0.8, 0.2, False), (0.8, 0.2000001, True), (0.79999995, 0.2, False),
+               (0.9, 0.3, True)]
+    for rho_d, rho_s, warns in updates:
+        params["ball_bsdf.diffuse_reflectance.value"] = mi.Color3f(rho_d)
+        params["ball_bsdf.specular_reflectance.value"] = mi.Color3f(rho_s)
+        with warnings_logged() as lines:
+            params.update()
+        warned = energy_warnings(lines)
+        assert len(warned) == warns, (rho_d, rho_s, warned)
+        assert all("of bsdf 'ball_bsdf' reach" in line for line in warned)
+
+
+def test_a_bsdf_without_an_id_is_said_to_have_none():
+    with warnings_logged() as lines:
+        phong(rho_d=0.8, rho_s=0.3)
+    assert any("of a bsdf without an id reach 0.8 + 0.3 = 1.1 > 1" in line
+               for line in energy_warnings(lines))

@@ -37,3 +37,16 @@ def test_available_memory_is_the_smaller_of_the_system_and_its_cgroup(tmp_path, 
 def test_a_cgroup_without_a_limit_leaves_the_system_figure(tmp_path, monkeypatch):
     _memory_files(tmp_path, monkeypatch, 5 << 20, "max", 1 << 30)
     assert system.available_memory() == 5 << 30
+
+
+def test_an_address_space_limit_leaves_what_the_process_has_not_mapped(tmp_path, monkeypatch):
+    """``ulimit -v`` counts every mapping of the process (its size in
+    /proc/self/status), whatever the machine has free."""
+    _memory_files(tmp_path, monkeypatch, 8 << 20, "max", 0)
+    mapped = int(proc_field("/proc/self/status", "VmSize").split()[0]) << 10
+    monkeypatch.setattr(system, "address_space_limit", lambda: mapped + (1 << 30))
+    assert (1 << 30) - (64 << 20) < system.available_memory() <= 1 << 30
+    monkeypatch.setattr(system, "address_space_limit", lambda: mapped // 2)
+    assert system.available_memory() == 0
+    monkeypatch.setattr(system, "address_space_limit", lambda: None)
+    assert system.available_memory() == 8 << 30

@@ -18,10 +18,11 @@ import numpy as np
 
 from mitsuba_whitted.cli import CommandParser, add_cluster_options, run_command
 from mitsuba_whitted.compare import (PATH_SAMPLERS, CompareOptions, ReferenceCache, Setting,
-                                     cache_key, cached_reference, compare_scene,
-                                     equivalence_test, estimate_text, luminance,
+                                     cache_key, cached_reference, equivalence_test,
+                                     estimate_text, loaded_source, luminance, measure_scene,
                                      missing_energy_share, missing_light, noise_rel_mse,
-                                     run_sweep, scene_whitted_settings, whitted_batches)
+                                     run_sweep, scene_whitted_settings, whitted_batches,
+                                     write_scene_report)
 from mitsuba_whitted.compare.equal_error import time_estimates
 from mitsuba_whitted.compare.report import MarkdownReport, number
 from mitsuba_whitted.compare.intervals import Estimate, verdict_text
@@ -204,6 +205,15 @@ def speed_section(report: MarkdownReport, cache: ReferenceCache, backend,
     """The section, and the comparison of each scene (``settings``: the
     report's unless given)."""
     settings = settings or SpeedSettings()
+    comparisons = measure_speed(settings, cache, backend)
+    write_speed_section(report, settings, comparisons)
+    return comparisons
+
+
+def write_speed_section(report: MarkdownReport, settings: SpeedSettings,
+                        comparisons: list) -> None:
+    """The section of ``comparisons``, measured with ``settings``, each
+    scene's own report beside it."""
     options, size = settings.options, settings.resolution
     report.heading("3. Speed against error")
     report.paragraph(
@@ -214,23 +224,27 @@ def speed_section(report: MarkdownReport, cache: ReferenceCache, backend,
         f"`path` reference. {timing_sentence(options.rounds)} "
         f"{split_sentence(options.converged_side)} {speedup_sentence()} The full report of "
         "each scene (images, crops, error maps, path's rungs) is linked.")
-    comparisons = []
-    for index, scene_path in enumerate(settings.scenes, start=1):
-        out = report.directory / "speed" / scene_path.stem
-        result = compare_scene(scene_path, out, options, {"res": str(size)},
-                               cache_dir=cache.directory, progress=Progress(),
-                               keep_linear=False, backend=backend)
+    for index, result in enumerate(comparisons, start=1):
+        out = report.directory / "speed" / result.name
+        result.report = write_scene_report(out, result, keep_linear=False)
         link = out.relative_to(report.directory).as_posix()
-        report.heading(f"3.{index} [{scene_path.name}]({link}/report.md)", level=3)
+        report.heading(f"3.{index} [{result.scene_path.name}]({link}/report.md)", level=3)
         report.figure(f"{link}/images/speed_vs_error.png",
-                      f"{scene_path.name}: relMSE and FLIP against time")
+                      f"{result.scene_path.name}: relMSE and FLIP against time")
         whitted_table(report, result.results)
         for sentence in verdict_sentences(result.results):
             report.paragraph(sentence)
         levels_table(report, result.results)
-        comparisons.append(result)
     goal_table(report, comparisons)
-    return comparisons
+
+
+def measure_speed(settings: SpeedSettings, cache: ReferenceCache, backend) -> list:
+    """The comparison of each scene of ``settings``, measured without its
+    report."""
+    defines = {"res": str(settings.resolution)}
+    return [measure_scene(loaded_source(scene_path, defines), settings.options,
+                          cache.directory, Progress(), backend)
+            for scene_path in settings.scenes]
 
 
 def goal_table(report: MarkdownReport, comparisons: list) -> None:

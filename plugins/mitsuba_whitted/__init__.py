@@ -22,18 +22,17 @@ A usable libLLVM is chosen before Dr.Jit loads one (see :mod:`.llvm`), and
 (see :mod:`.checked_render`).
 """
 
-from __future__ import annotations
+# First, before any other import: in the command, Ctrl-C is handled from
+# here on (see .startup; no "from __future__" either, which imports a module).
+from . import startup
 
-import importlib
-import sys
+if startup.COMMAND:
+    startup.start()
 
-from . import interrupt, system
+import importlib  # noqa: E402  (after Ctrl-C is handled)
+import sys  # noqa: E402
 
-if interrupt.started_as("mitsuba_whitted.cli", "mitsuba-whitted"):
-    system.open_standard_streams()
-    interrupt.end_quietly_on_ctrl_c("mitsuba-whitted")
-
-from . import llvm  # noqa: E402  (after Ctrl-C is handled)
+from . import llvm  # noqa: E402
 from .errors import ParameterError  # noqa: E402,F401  (raised by every plugin's checks)
 
 __version__ = "0.1.0"
@@ -57,7 +56,7 @@ llvm.configure()
 import mitsuba as mi  # noqa: E402  (after the libLLVM choice)
 
 from .checked_render import checked  # noqa: E402
-from .scene_files import check_films, parse  # noqa: E402
+from .scene_files import check_films, check_images, parse  # noqa: E402
 
 
 def _register_plugins(variant: str | None) -> None:
@@ -118,8 +117,11 @@ def load_file(path: str, **defines):
     differently from run to run (a cube of six rectangles did); both are
     off here. Ray counts and render times of ``scenes/cosc363.xml`` are the
     same either way. A film without pixels is refused by name
-    (:func:`.scene_files.check_films`)."""
-    check_films(parse(path, defines))
+    (:func:`.scene_files.check_films`), and so is an image whose pixels
+    would not fit in memory (:func:`.scene_files.check_images`)."""
+    state = parse(path, defines)
+    check_films(state)
+    check_images(state, path)
     return mi.load_file(str(path), parallel=False, optimize=False, **defines)
 
 

@@ -22,9 +22,10 @@ import mitsuba as mi
 
 from . import files
 from .errors import UsageError, caused_by, one_sentence
-from .interrupt import InterruptGuard, exit_code, interrupted_line, last_write
+from .interrupt import InterruptGuard, last_write
 from .progress import Progress
 from .scene_files import check_not_read
+from .startup import exit_code, interrupted_line
 from .system import to_null
 
 

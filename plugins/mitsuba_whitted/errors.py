@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import errno
 import re
+
+from .system import address_space_limit, describe_limit
 
 
 class ParameterError(ValueError):
@@ -90,14 +93,49 @@ def one_sentence(error: BaseException) -> str:
     dug out of the wrappers and the nested messages (a Python traceback
     inside a plugin-loading error, an ``<include>``'s error inside its
     file's, nanobind's list of signatures) that Mitsuba and Dr.Jit make."""
+    memory = next((link for link in _chain(error) if _is_out_of_memory(link)), None)
+    if memory is not None:
+        # Also when it is only the context of the error raised (Dr.Jit's
+        # import fails in a NameError after its library could not be mapped).
+        return _sentence(_out_of_memory(memory))
     cause = root_cause(error)
     if isinstance(cause, RecursionError):
         return _sentence(f"Python's recursion limit was reached ({cause})")
-    if isinstance(cause, MemoryError):
-        detail = f" ({cause})" if str(cause) else ""
-        return _sentence(f"the machine ran out of memory{detail}")
     text = _plain_line(str(cause), type(cause).__name__)
     return _sentence(text or f"{type(cause).__name__} without a message")
+
+
+#: The dynamic loader's message for a library it could not map into the
+#: address space, and the library's file name.
+_UNMAPPED = re.compile(r"([^/\s:]+): failed to map segment")
+#: C++'s failed allocation in the message of an error that wraps it
+#: (Mitsuba's, for a plugin that could not be made).
+_BAD_ALLOC = "std::bad_alloc"
+
+
+def _is_out_of_memory(error: BaseException) -> bool:
+    """Whether ``error`` says that memory could not be had: Python's
+    ``MemoryError`` (also C++'s ``std::bad_alloc``, which nanobind turns
+    into one, or which Mitsuba names in its own error), the system's
+    ENOMEM, and the dynamic loader's failure to map a library (an
+    ``ImportError``, or Mitsuba's error on loading a plugin)."""
+    return (isinstance(error, MemoryError) or getattr(error, "errno", None) == errno.ENOMEM
+            or _BAD_ALLOC in str(error) or _UNMAPPED.search(str(error)) is not None)
+
+
+def _out_of_memory(error: BaseException) -> str:
+    """What ran out, said with its cause where the process has an
+    address-space limit: that limit, not the machine's memory, is then what
+    runs out first."""
+    unmapped = _UNMAPPED.search(str(error))
+    detail = (f"{unmapped.group(1)} could not be mapped" if unmapped
+              else _SOURCE_LOCATION.sub("", str(error)).strip())
+    detail = f" ({detail})" if detail else ""
+    limit = address_space_limit()
+    if limit is None:
+        return f"the machine ran out of memory{detail}"
+    return f"the process ran out of memory{detail} under {describe_limit(limit)}; " \
+           "raise the limit or remove it"
 
 
 def _plain_line(text: str, name: str) -> str:

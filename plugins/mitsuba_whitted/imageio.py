@@ -15,11 +15,14 @@ from __future__ import annotations
 
 import os
 import shutil
+from contextlib import contextmanager
+from functools import cache
 from pathlib import Path
 
 import numpy as np
 
-from .files import WriteError, cannot_write, check_writable, write_atomically
+from .files import ReadError, WriteError, cannot_write, check_writable, write_atomically
+from .system import available_memory, available_text, size_text
 
 HDR_SUFFIXES = {".exr", ".hdr", ".pfm"}
 LDR_SUFFIXES = {".png", ".jpg", ".jpeg"}
@@ -160,7 +163,10 @@ class _Encoder:
         import OpenImageIO as oiio
 
         self.oiio, self.path = oiio, path
-        self.out = oiio.ImageOutput.create(str(path))
+        # By the format's extension, which is ASCII (_known_format), not the
+        # path: OpenImageIO takes names as UTF-8 only, and it writes to
+        # memory here.
+        self.out = oiio.ImageOutput.create(path.suffix[1:])
         if self.out is None:
             raise cannot_write(path, f"OpenImageIO has no writer for it "
                                      f"({_oiio_reason(None, oiio)})")
@@ -217,13 +223,81 @@ def _oiio_reason(out, oiio) -> str:
 
 
 def read_image(path: str | Path) -> np.ndarray:
-    """Read an image as float32 (height, width, channels), as stored."""
+    """Read an image as float32 (height, width, channels), as stored; a
+    :class:`~.files.ReadError` for one that OpenImageIO cannot read, or
+    whose pixels would not fit in the memory available (:func:`too_large`)."""
     import OpenImageIO as oiio
 
-    image = oiio.ImageInput.open(str(path))
-    if image is None:
-        raise ImageWriteError(f"mitsuba-whitted: cannot read '{path}': {oiio.geterror()}")
-    try:
+    with _opened(path) as image:
+        refusal = _refusal(image)
+        if refusal:
+            raise ReadError(f"mitsuba-whitted: cannot read '{path}': {refusal}.")
         return image.read_image(oiio.FLOAT)
+
+
+def image_refusal(path: str | Path) -> str | None:
+    """Why the image at ``path`` cannot be read into memory, as
+    :func:`read_image` says it; ``None`` if it can, or if ``path`` is not
+    named as an image that OpenImageIO reads (a mesh, a spectrum)."""
+    if Path(path).suffix.lower()[1:] not in _image_extensions():
+        return None
+    with _opened(path) as image:
+        return _refusal(image)
+
+
+def _refusal(image) -> str | None:
+    """Why the image OpenImageIO has opened (``None``: could not open)
+    cannot be read into memory; ``None`` if it can. OpenImageIO refuses a
+    header that declares more pixels than its file can hold (more than
+    10000 times its size)."""
+    if image is None:
+        import OpenImageIO as oiio
+
+        return f"OpenImageIO cannot read it ({_oiio_reason(None, oiio)})"
+    return too_large(image.spec(), available_memory())
+
+
+def too_large(spec, available: int | None) -> str | None:
+    """Why an image whose header is ``spec`` would not fit in ``available``
+    bytes as float32, as :func:`read_image` and Mitsuba's ``bitmap`` hold
+    its pixels; ``None`` if it fits (or the memory is not known). A header
+    can declare any size, and the allocation that fails is then
+    ``std::bad_alloc`` in the middle of a scene's loading."""
+    needed = spec.width * spec.height * max(spec.depth, 1) * spec.nchannels * 4
+    if available is None or needed <= available:
+        return None
+    return (f"its header declares {spec.width} x {spec.height} pixels of {spec.nchannels} "
+            f"channels, {size_text(needed)} as float32, and {available_text(available)}")
+
+
+@contextmanager
+def _opened(path: str | Path):
+    """An OpenImageIO reader open on ``path`` (its header read, no pixel),
+    or ``None`` if it reads no image there; closed after the block.
+    OpenImageIO's own limit on the size a header declares is lifted for the
+    opening: it caps at 32 GiB, refusing images that fit in this machine's
+    memory, and counts bytes as stored, letting others through that do not
+    fit as float32; :func:`too_large` decides instead."""
+    import OpenImageIO as oiio
+
+    limit = oiio.get_int_attribute("limits:imagesize_MB")
+    oiio.attribute("limits:imagesize_MB", 0)
+    try:
+        image = oiio.ImageInput.open(str(path))
     finally:
-        image.close()
+        oiio.attribute("limits:imagesize_MB", limit)
+    try:
+        yield image
+    finally:
+        if image is not None:
+            image.close()
+
+
+@cache
+def _image_extensions() -> set[str]:
+    """The file extensions OpenImageIO reads (it lists them as
+    "tiff:tif,tiff;png:png;...")."""
+    import OpenImageIO as oiio
+
+    formats = oiio.get_string_attribute("extension_list").split(";")
+    return {extension for entry in formats for extension in entry.partition(":")[2].split(",")}

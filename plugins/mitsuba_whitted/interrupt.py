@@ -32,18 +32,12 @@ import threading
 import time
 from contextlib import contextmanager, suppress
 
-#: The signals that stop a command, and what it says when one does.
-STOPPING = {signal.SIGINT: "interrupted", signal.SIGTERM: "terminated",
-            signal.SIGHUP: "hung up", signal.SIGQUIT: "quit"}
+from .startup import STOPPING, exit_code
+
 #: Seconds the main thread has to unwind before the watcher ends the process.
 GRACE = 0.5
 #: Seconds before a signal that came during an import is sent again.
 RETRY = 0.02
-
-
-def exit_code(signum: int) -> int:
-    """What shells report for a process that a signal stopped."""
-    return 128 + signum
 
 
 class InterruptGuard:
@@ -203,29 +197,3 @@ def _importing(frame) -> bool:
             return True
         frame = frame.f_back
     return False
-
-
-def started_as(module: str, script: str) -> bool:
-    """Whether this process is a command: ``script`` (a console script) or
-    ``python -m module``."""
-    argv = sys.orig_argv
-    return (os.path.basename(sys.argv[0]) == script
-            or (module in argv and argv[argv.index(module) - 1] == "-m"))
-
-
-def interrupted_line(program: str, signum: int = signal.SIGINT) -> str:
-    """What a command says, and all it says, when Ctrl-C (or ``signum``)
-    ends it."""
-    return f"{program}: {STOPPING[signum]}.\n"
-
-
-def end_quietly_on_ctrl_c(program: str) -> None:
-    """Until a command's :class:`InterruptGuard` takes over, Ctrl-C ends the
-    process at once with one line: nothing is written yet, and a
-    ``KeyboardInterrupt`` raised while Python imports Dr.Jit and Mitsuba
-    ends in a traceback (or in a half-imported module's ``NameError``)."""
-    def end(signum, frame):
-        os.write(2, interrupted_line(program).encode())
-        os._exit(exit_code(signal.SIGINT))
-
-    signal.signal(signal.SIGINT, end)

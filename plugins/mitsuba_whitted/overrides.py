@@ -19,6 +19,7 @@ from pathlib import Path
 import mitsuba as mi
 
 from . import load_file
+from .scene_files import check_utf8
 
 #: Mitsuba's film size when a scene gives none (``hdrfilm``'s defaults).
 DEFAULT_FILM_SIZE = (768, 576)
@@ -33,6 +34,9 @@ def load_with(path: Path, defines: dict, settings: dict) -> mi.Scene:
     path = Path(path)
     if not settings:
         return load_file(path, **defines)
+    # Refused here too, though Python reads the XML: every command reads
+    # such a scene the same way, and the processes it starts cannot.
+    check_utf8(path, defines)
     try:
         root = ET.parse(path).getroot()
     except ET.ParseError as error:

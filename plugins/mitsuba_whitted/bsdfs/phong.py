@@ -20,6 +20,10 @@ _GLOSSY = mi.BSDFFlags.GlossyReflection
 
 #: The parameters that hold reflectances.
 REFLECTANCES = ("diffuse_reflectance", "specular_reflectance")
+#: The relative error of a number rounded to float32 (half an ulp, 2^-24):
+#: 0.8 and 0.2 are 0.800000012 and 0.200000003 in float32, whose sum passes
+#: 1 by 1.5e-8, less than this rounding of the two.
+_ROUNDING = float(np.finfo(np.float32).eps) / 2
 
 
 class Phong(mi.BSDF):
@@ -134,15 +138,28 @@ class Phong(mi.BSDF):
         return float(self.exponent[0] if dr.is_jit_v(self.exponent) else self.exponent)
 
     def _warn_if_not_energy_conserving(self, constants: dict) -> None:
-        """Warn when constant reflectances can reflect more than they receive.
-        The largest channel is exact for a grey constant and an upper bound
-        for a coloured one; textures that vary are skipped."""
-        bounds = [None if value is None else value.max() for value in constants.values()]
-        if None not in bounds and sum(bounds) > 1:
-            mi.Log(mi.LogLevel.Warn,
-                   f"{PLUGIN_NAME}: diffuse_reflectance + specular_reflectance "
-                   f"reach {sum(bounds):g} > 1, so the BSDF reflects more energy "
-                   "than it receives.")
+        """Warn when constant reflectances reflect more than they receive in
+        some channel; textures that vary are skipped."""
+        if any(value is None for value in constants.values()):
+            return
+        diffuse, specular = np.broadcast_arrays(*constants.values())
+        total = diffuse + specular
+        worst = int(np.argmax(total))
+        # Each float32 reflectance may be up to _ROUNDING above the number
+        # written, so a sum up to that much over 1 may have been 1 or less.
+        if total[worst] * (1 - _ROUNDING) <= 1:
+            return
+        mi.Log(mi.LogLevel.Warn,
+               f"{PLUGIN_NAME}: diffuse_reflectance + specular_reflectance of {self._name()} "
+               f"reach {_shown(diffuse[worst])} + {_shown(specular[worst])} = "
+               f"{total[worst]:.8g} > 1, so the BSDF reflects more energy than it receives.")
+
+    def _name(self) -> str:
+        """How a sentence names this BSDF: by its id, if the scene gave one."""
+        name = self.id()
+        if name and not name.startswith("_unnamed"):
+            return f"bsdf '{name}'"
+        return "a bsdf without an id"
 
     # -- Evaluation ---------------------------------------------------------
 
@@ -244,6 +261,11 @@ def _glossy_probability(ctx, rho_d, rho_s):
     weight_s = dr.maximum(dr.mean(rho_s), 0.0)
     total = weight_d + weight_s
     return dr.select(total > 0, weight_s / total, 0.5)
+
+
+def _shown(value: float) -> str:
+    """A float32 reflectance as it was written (its shortest text)."""
+    return np.format_float_positional(np.float32(value), trim="-")
 
 
 def _constant_value(texture) -> np.ndarray | None:

@@ -13,5 +13,6 @@ from .sweep import (PATH_SAMPLERS, Setting, Sweep, SweepPoint, path_ladder, path
                     run_sweep, scene_whitted_settings, whitted_settings, whitted_variants)
 from .equal_error import Analysis, Gain, analyse, envelope, reach
 from .intervals import Estimate, estimate_text, verdict, verdict_text
-from .scene_report import (CompareError, CompareOptions, check_report_folder, compare_scene,
-                           load_scene)
+from .scene_report import (CompareError, CompareOptions, SceneComparison, check_report_folder,
+                           compare_scene, load_scene, loaded_source, measure_scene,
+                           write_scene_report)

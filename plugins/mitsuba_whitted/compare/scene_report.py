@@ -76,13 +76,18 @@ class CompareOptions:
 
 @dataclass
 class SceneComparison:
-    name: str
+    scene_path: Path
+    defines: dict
     reference: Reference
     sweep: Sweep
     analysis: Analysis
     converged: dict
-    report: Path
+    report: Path | None
     results: dict
+
+    @property
+    def name(self) -> str:
+        return self.scene_path.stem
 
 
 def load_scene(path: str | Path, defines: dict | None = None) -> mi.Scene:
@@ -124,31 +129,45 @@ def compare_scene(scene_path: str | Path, out_dir: str | Path, options: CompareO
     one that holds a file the scene reads."""
     scene_path, out_dir = Path(scene_path), check_report_folder(out_dir)
     check_not_read([out_dir], scene_path, defines or {})
-    scene = load_scene(scene_path, defines)
+    source = loaded_source(scene_path, defines)
     write_text(out_dir / FOLDER_MARK, "A report of mitsuba-whitted compare, which writes "
                "here again.\n")
-    source = SceneSource(scene_path, defines or {}, scene)
-    cache = ReferenceCache(cache_dir or out_dir / "cache")
+    comparison = measure_scene(source, options, cache_dir or out_dir / "cache", progress,
+                               backend)
+    comparison.report = write_scene_report(out_dir, comparison, keep_linear)
+    return comparison
+
+
+def loaded_source(scene_path: str | Path, defines: dict | None = None) -> SceneSource:
+    """The scene file with its defines, loaded by :func:`load_scene`."""
+    return SceneSource(scene_path, defines or {}, load_scene(scene_path, defines))
+
+
+def measure_scene(source: SceneSource, options: CompareOptions, cache_dir: str | Path,
+                  progress=None, backend=None) -> SceneComparison:
+    """Every render and measurement of a comparison of the loaded scene
+    file ``source``, and its results, without the report (``report`` is
+    ``None``)."""
+    cache = ReferenceCache(cache_dir)
     settings = path_settings()
     key = cache_key(scene=source.digest, spp=options.reference_spp,
                     passes=REFERENCE_PASSES, integrator=settings)
     reference = cached_reference(cache, key, source, options.reference_spp, REFERENCE_PASSES,
                                  settings, progress, backend)
     _finish(progress)
+    scene = source.scene
     variants = whitted_variants(scene_whitted_settings(scene), options.quick)
     sweep = run_sweep(scene, reference,
                       whitted_settings(variants) + path_ladder(options.path_max_spp),
-                      sampler_sensors(scene_path, defines or {}), options.rounds, progress)
+                      sampler_sensors(source.path, source.defines), options.rounds, progress)
     _finish(progress)
     analysis = analyse(sweep)
     converged = converged_renders(scene, source.digest, variants, cache, options.converged_side,
                                   reference)
-    results = _results(scene_path.name, reference, sweep, analysis, converged, options)
+    results = _results(source.path.name, reference, sweep, analysis, converged, options)
     results["film_filter"] = scene.sensors()[0].film().rfilter().class_name()
-    report = _write_report(out_dir, scene_path, defines, reference, sweep, converged, results,
-                           keep_linear)
-    return SceneComparison(scene_path.stem, reference, sweep, analysis, converged, report,
-                           results)
+    return SceneComparison(source.path, source.defines, reference, sweep, analysis, converged,
+                           None, results)
 
 
 def _finish(progress):
@@ -234,6 +253,15 @@ def shown_rungs(sweep: Sweep) -> list[SweepPoint]:
 
 
 # ----------------------------------------------------------------- report
+
+def write_scene_report(out_dir: str | Path, comparison: SceneComparison,
+                       keep_linear: bool = True) -> Path:
+    """The report of ``comparison`` into ``out_dir``: its text, figures,
+    images and ``results.json``; the path of its Markdown file."""
+    return _write_report(Path(out_dir), comparison.scene_path, comparison.defines,
+                         comparison.reference, comparison.sweep, comparison.converged,
+                         comparison.results, keep_linear)
+
 
 def _write_report(out_dir, scene_path, defines, reference, sweep, converged, results,
                   keep_linear):

@@ -25,7 +25,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from ..errors import ParameterError
-from ..system import available_memory
+from ..system import available_memory, available_text
 from .antialias import Band
 
 PLUGIN_NAME = "whitted"
@@ -151,4 +151,4 @@ def _check_fits(plan: RenderPlan, demand: Demand, available: int | None) -> None
         PLUGIN_NAME, parameter,
         f"makes this {demand.width} x {demand.height} render need about "
         f"{plan.peak_bytes / GIB:.1f} GiB of memory ({largest}: {parts[largest] / GIB:.1f} GiB), "
-        f"and {available / GIB:.1f} GiB are available; {advice}")
+        f"and {available_text(available)}; {advice}")
