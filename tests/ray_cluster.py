@@ -73,6 +73,11 @@ while sum(node["Alive"] for node in ray.nodes()) < int(sys.argv[2]):
 """
 
 
+def _wait_for_nodes(address: str, count: int, env: dict) -> None:
+    subprocess.run([sys.executable, "-c", WAIT_FOR_NODES, address, str(count), str(START_SECONDS)],
+                   env=env, check=True, timeout=START_SECONDS + 60, capture_output=True)
+
+
 def _wait_for_port(port: int, head: subprocess.Popen) -> None:
     deadline = time.monotonic() + START_SECONDS
     while True:
@@ -103,10 +108,43 @@ def two_node_cluster(env: dict | None = None):
         _wait_for_port(port, processes[0])
         processes.append(_ray_start([f"--address={address}", "--node-ip-address=127.0.0.1",
                                      f"--dashboard-agent-listen-port={free_port()}"], env))
-        subprocess.run([sys.executable, "-c", WAIT_FOR_NODES, address, "2", str(START_SECONDS)],
-                       env=env, check=True, timeout=START_SECONDS + 60, capture_output=True)
+        _wait_for_nodes(address, 2, env)
         yield Cluster(address, env)
     finally:
         for process in reversed(processes):
             _stop(process)
         shutil.rmtree(temp, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def cluster_of_commands(commands: list[str], address: str, env: dict):
+    """The cluster at ``address`` that the shell ``commands`` start (``ray
+    start`` lines, as a user types them), in ``env`` with Ray's programs on
+    its ``PATH``. Each runs in a session of its own, whose process group
+    Ray's processes stay in: they are stopped with it on exit."""
+    env = dict(env, PATH=f"{Path(sys.executable).parent}{os.pathsep}{env.get('PATH', '')}")
+    groups = []
+    try:
+        for command in commands:
+            start = subprocess.Popen(["bash", "-c", command], env=env, start_new_session=True,
+                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+            groups.append(start.pid)
+            output = start.communicate(timeout=START_SECONDS)[0]
+            assert start.returncode == 0, f"{command}:\n{output}"
+        _wait_for_nodes(address, len(commands), env)
+        yield Cluster(address, env)
+    finally:
+        for group in reversed(groups):
+            _stop_group(group)
+
+
+def _stop_group(group: int) -> None:
+    """SIGTERM to the process group, and SIGKILL to what is left of it after
+    :data:`STOP_SECONDS`."""
+    deadline = time.monotonic() + STOP_SECONDS
+    with contextlib.suppress(ProcessLookupError):
+        os.killpg(group, signal.SIGTERM)
+        while time.monotonic() < deadline:
+            os.killpg(group, 0)
+            time.sleep(0.5)
+        os.killpg(group, signal.SIGKILL)

@@ -11,9 +11,12 @@ own, as a user's command would.
 import importlib.util
 import json
 import os
+import re
+import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -29,13 +32,14 @@ if importlib.util.find_spec("ray") is None:
     pytest.skip("Ray is not installed (pip install 'mitsuba-whitted[cluster]')",
                 allow_module_level=True)
 
-from ray_cluster import free_port, two_node_cluster  # noqa: E402
+from ray_cluster import cluster_of_commands, free_port, two_node_cluster  # noqa: E402
 from validation.scenes import REPORT_SCENE, ROOT  # noqa: E402
 
 #: Every scene the project ships.
 SCENES = [REPORT_SCENE, *sorted((ROOT / "scenes" / "cases").glob("*.xml"))]
 GLASS = ROOT / "scenes" / "cases" / "glass_spheres.xml"
 JOB = Path(__file__).parent / "tools" / "cluster_job.py"
+README = ROOT / "README.md"
 #: Seconds any command of these tests may take.
 COMMAND_SECONDS = 300
 #: The image size of the render-many tests, alone and in a batch.
@@ -185,21 +189,53 @@ def without_ray_auth(env) -> dict:
     return {name: value for name, value in env.items() if not name.startswith("RAY_AUTH")}
 
 
+def test_a_refused_join_is_one_sentence_without_rays_log(cluster, tmp_path):
+    """A cluster that asks for a token the command lacks: Ray's C++ core
+    logs each refused attempt on stderr; the user reads one sentence that
+    names the address and what is missing."""
+    env = without_ray_auth(cluster.env)
+    result = cli("render-many", str(GLASS), "--out", str(tmp_path), "--cluster", cluster.address,
+                 env=env, timeout=COMMAND_SECONDS)
+    assert result.returncode == 2
+    line = one_line(result.stderr)
+    assert line.startswith(f"mitsuba-whitted: could not join the Ray cluster at {cluster.address}")
+    assert "InvalidAuthToken" in line and "RAY_AUTH_TOKEN" in line
+    assert not any(tmp_path.iterdir())
+
+
+def readmes_cluster_recipe(port: int) -> list[str]:
+    """The README's commands that start a cluster (its block of ``ray
+    start`` lines), for a head on this machine at ``port``."""
+    blocks = re.findall(r"```sh\n(.*?)```", README.read_text(), re.S)
+    recipe = next(block for block in blocks if "ray start --head" in block)
+    commands = [line.partition("#")[0].strip() for line in recipe.splitlines()]
+    return [command.replace("HEAD", "127.0.0.1").replace("6379", str(port))
+            for command in commands if command]
+
+
 def test_the_readmes_cluster_recipe_works_after_a_local_ray(tmp_path):
     """``--workers`` in a fresh home leaves nothing there but Dr.Jit's
     kernel cache (Ray would write a token to ~/.ray/auth_token, which turns
     token authentication on for the user's next ``ray start --head``); then
-    the README's recipe, a head and a node that know no token, makes a
-    cluster of two nodes, which a command joins."""
+    the README's recipe, run as written (a head and a node that know no
+    token), makes a cluster of two nodes, which a command joins."""
     home = tmp_path / "home"
     home.mkdir()
-    env = dict(without_ray_auth(os.environ), HOME=str(home))
+    # Ray's files in a folder of the test's (short: Ray's socket paths
+    # under it must stay within 107 characters), not in the machine's /tmp/ray.
+    ray_files = Path(tempfile.mkdtemp(prefix="mwray"))
+    env = dict(without_ray_auth(os.environ), HOME=str(home), RAY_TMPDIR=str(ray_files),
+               RAY_USAGE_STATS_ENABLED="0")
     env.pop("RAY_ADDRESS", None)
     result = cli("render-many", str(GLASS), "--out", str(tmp_path / "out"), "-D", "res=8",
                  "--workers", "2", env=env, timeout=COMMAND_SECONDS)
     assert result.returncode == 0, result.stderr
     assert [path.name for path in home.iterdir()] == [".drjit"]
-    with two_node_cluster(env) as recipe:
-        result = cli("render-many", str(GLASS), "--out", str(tmp_path / "out"), "-D", "res=8",
-                     "--cluster", recipe.address, env=recipe.env, timeout=COMMAND_SECONDS)
-        assert result.returncode == 0, result.stderr
+    port = free_port()
+    try:
+        with cluster_of_commands(readmes_cluster_recipe(port), f"127.0.0.1:{port}", env) as recipe:
+            result = cli("render-many", str(GLASS), "--out", str(tmp_path / "out"), "-D", "res=8",
+                         "--cluster", recipe.address, env=recipe.env, timeout=COMMAND_SECONDS)
+            assert result.returncode == 0, result.stderr
+    finally:
+        shutil.rmtree(ray_files, ignore_errors=True)

@@ -25,9 +25,11 @@ interrupted frames still hold as leaks.
 
 from __future__ import annotations
 
+import io
 import os
 import signal
 import sys
+import tempfile
 import threading
 import time
 from contextlib import contextmanager, suppress
@@ -129,11 +131,11 @@ class InterruptGuard:
         with self._stopping:
             if self.committed:
                 return
+            # A block that keeps stderr back must not take the last line.
+            _give_stderr_back()
             self.last_words(self.received)
-            for stream in (sys.stdout, sys.stderr):
-                # Gone with the terminal (SIGHUP), or closed: nothing to keep.
-                with suppress(AttributeError, OSError, ValueError):
-                    stream.flush()
+            _flush(sys.stdout)
+            _flush(sys.stderr)
             os._exit(exit_code(self.received))
 
     def commit(self, action) -> None:
@@ -197,3 +199,57 @@ def _importing(frame) -> bool:
             return True
         frame = frame.f_back
     return False
+
+
+#: Descriptor 2 as it was before the :func:`stderr_kept_back` block that
+#: runs now (``None`` outside one), and the lock of its exchanges.
+_stderr_before: int | None = None
+_stderr_exchange = threading.Lock()
+
+
+@contextmanager
+def stderr_kept_back():
+    """What is written on descriptor 2 during the block, by C++ libraries as
+    by Python, goes into a temporary file instead of the terminal; the
+    ``io.StringIO`` yielded holds it once the block is over. A signal that stops
+    the command gives the descriptor back before the last line."""
+    caught = io.StringIO()
+    with tempfile.TemporaryFile() as file:
+        # The exchanges held off: a KeyboardInterrupt between a dup and its
+        # note would leave stderr in the file (the watcher's stop takes the
+        # lock and gives it back).
+        try:
+            with held_off():
+                _take_stderr(file.fileno())
+            yield caught
+        finally:
+            with held_off():
+                _give_stderr_back()
+        file.seek(0)
+        caught.write(file.read().decode(errors="replace"))
+
+
+def _take_stderr(descriptor: int) -> None:
+    global _stderr_before
+    with _stderr_exchange:
+        _flush(sys.stderr)
+        _stderr_before = os.dup(2)
+        os.dup2(descriptor, 2)
+
+
+def _give_stderr_back() -> None:
+    """Descriptor 2 as before :func:`stderr_kept_back` (nothing outside one)."""
+    global _stderr_before
+    with _stderr_exchange:
+        if _stderr_before is None:
+            return
+        _flush(sys.stderr)
+        os.dup2(_stderr_before, 2)
+        os.close(_stderr_before)
+        _stderr_before = None
+
+
+def _flush(stream) -> None:
+    # Gone with the terminal (SIGHUP), or closed: nothing to keep.
+    with suppress(AttributeError, OSError, ValueError):
+        stream.flush()

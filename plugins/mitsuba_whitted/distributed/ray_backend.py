@@ -25,9 +25,11 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import re
 import secrets
 import signal
 import socket
+import sys
 import threading
 from collections import deque
 
@@ -35,7 +37,7 @@ import ray
 import ray.exceptions
 
 from ..errors import ClusterError
-from ..interrupt import STOPPING
+from ..interrupt import STOPPING, stderr_kept_back
 from .scene import load_bundle
 from .task import Environment, make_integrator, prepare_process, render_task
 
@@ -142,14 +144,45 @@ def _start_local(workers: int | None) -> None:
 
 
 def _join(address: str) -> None:
+    """Join the cluster at ``address``, or one sentence naming it. Ray's
+    C++ core logs each failed attempt on stderr: those lines are kept from
+    the terminal, and the last one gives the sentence its reason (a join
+    that succeeds shows what Ray wrote)."""
     check_reachable(address)
-    try:
-        with _environment({"RAY_gcs_server_port_wait_time_s": str(JOIN_ATTEMPTS)}):
+    failure = None
+    with stderr_kept_back() as ray_log, _environment(
+            {"RAY_gcs_server_port_wait_time_s": str(JOIN_ATTEMPTS)}):
+        try:
             ray.init(address=address, **QUIET)
-    except (ConnectionError, ImportError, RuntimeError, ValueError) as error:
-        detail = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        except (ConnectionError, ImportError, RuntimeError, ValueError,
+                ray.exceptions.RayError) as error:
+            failure = error
+    if failure is not None:
         raise ClusterError(f"mitsuba-whitted: could not join the Ray cluster at {address}: "
-                           f"{detail}") from None
+                           f"{_join_failure(failure, ray_log.getvalue())}") from None
+    sys.stderr.write(ray_log.getvalue())
+
+
+#: A warning or error of Ray's C++ logging, its message in the group:
+#: "[2026-01-01 10:00:00,123 W 2177 2177] gcs_client.cc:210: Failed to ...".
+_RAY_LOG_LINE = re.compile(r"^\[[^\]]* [WEF] \d+ \d+\] [\w.]+:\d+: (.+)$", re.MULTILINE)
+
+
+def _join_failure(error: BaseException, ray_log: str) -> str:
+    """Why a join failed: the last message of Ray's log, which says more
+    than the exception ("Failed to connect to Ray cluster at ..."), else
+    the exception's message (without the help that Ray's authentication
+    errors append), else its first line."""
+    messages = _RAY_LOG_LINE.findall(ray_log)
+    if messages:
+        reason = messages[-1]
+    else:
+        lines = str(error).strip().splitlines()
+        reason = getattr(error, "message", None) or (lines[0] if lines else type(error).__name__)
+    reason = reason.strip().rstrip(".")
+    if "authentication token" in reason.lower():
+        reason += "; set RAY_AUTH_MODE=token and the cluster's RAY_AUTH_TOKEN"
+    return reason + "."
 
 
 def _stopping_signals_back_to_python() -> None:
