@@ -13,19 +13,22 @@ loaded in another variant.
 Importing the package puts :func:`render` in ``mi.render``'s place: it
 checks the scene and the seeds first, and raises this package's errors and
 ``KeyboardInterrupt`` themselves, unwrapped. Everything else passes
-through as Mitsuba raises it.
+through as Mitsuba raises it. One render runs at a time
+(:mod:`.render_lock`): calls from other threads wait for their turn.
 """
 
 from __future__ import annotations
 
 import functools
 import inspect
+import signal
 import sys
 
 import mitsuba as mi
 
 from .errors import ParameterError, VariantError, own_error
 from .parameters import check_seed
+from .render_lock import one_at_a_time
 
 #: The seeds ``mi.render`` takes, which it hashes as 32-bit integers.
 SEEDS = ("seed", "seed_grad")
@@ -36,6 +39,7 @@ def checked(mitsuba_render):
     signature = inspect.signature(mitsuba_render)
 
     @functools.wraps(mitsuba_render)
+    @one_at_a_time
     def render(*args, **kwargs):
         arguments = signature.bind(*args, **kwargs).arguments
         _check_scene(arguments.get("scene"))
@@ -49,8 +53,20 @@ def checked(mitsuba_render):
             if own is None:
                 raise
             raise own from None
+        finally:
+            _interrupt_waits_again()
 
     return render
+
+
+def _interrupt_waits_again() -> None:
+    """Let Ctrl-C interrupt the waits of Python's locks again (a thread's
+    ``join``, a render waiting for its turn): the render of one of
+    Mitsuba's own integrators installs its own SIGINT handler and puts
+    Python's back with ``signal()``, whose SA_RESTART resumes a wait that
+    the signal interrupted, so ``KeyboardInterrupt`` came only once the
+    wait ended."""
+    signal.siginterrupt(signal.SIGINT, True)
 
 
 def _check_scene(scene) -> None:

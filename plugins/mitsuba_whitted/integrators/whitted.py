@@ -10,6 +10,7 @@ from ..jit import in_launches, to_int
 from ..errors import ParameterError, VariantError, check, check_choice
 from ..film_format import developed_format
 from ..parameters import LastValid, check_seed, checked_numbers, describe
+from ..render_lock import one_at_a_time
 from . import antialias, gradients, render_plan
 from .render_plan import Demand, RenderPlan, plan_render
 from .scene_checks import check_emitters, check_placements
@@ -407,6 +408,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
 
     # ---------------------------------------------------------------- render
 
+    @one_at_a_time
     def render(self, scene: mi.Scene, sensor=0, seed=0, spp=0,
                develop: bool = True, evaluate: bool = True):
         sensor = _sensor(scene, sensor)
@@ -425,6 +427,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
 
     # ------------------------------------------------------------- gradients
 
+    @one_at_a_time
     def render_forward(self, scene: mi.Scene, params, sensor=0, seed=0, spp=0):
         """The derivative of ``render``'s image along the tangents of the
         parameters of ``params`` (:mod:`.gradients`), as a film's image."""
@@ -449,6 +452,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
                               shader=gradients.recording_shader(CameraShader, tangent))
         return film.develop()
 
+    @one_at_a_time
     def render_backward(self, scene: mi.Scene, params, grad_in, sensor=0, seed=0,
                         spp=0) -> None:
         """Add to the gradients of the parameters of ``params`` the
@@ -502,6 +506,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         value = seed_value(seed)
         return self._last.seed if value == _differential_seed(self._last.seed) else value
 
+    @one_at_a_time
     def render_rows(self, scene: mi.Scene, take, sensor=0, seed=0, held_bytes: int = 0) -> None:
         """Render without a film of the whole image: ``take(first_row,
         rows)`` receives the image band by band, top to bottom, as float32
@@ -638,6 +643,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
             self._last.noted.add(subject)
             _warn(message)
 
+    @one_at_a_time
     def trace_rays(self, scene: mi.Scene, ray: mi.Ray3f, seed: int = 0,
                    needs: SceneNeeds = None):
         """Whitted radiance and alpha along arbitrary rays, with the tracer of
