@@ -11,6 +11,7 @@ import pytest
 
 import mitsuba_whitted
 from conftest import assert_finite
+from mitsuba_whitted.errors import ParameterError
 from mitsuba_whitted.integrators.scene_needs import analyse
 from mitsuba_whitted.integrators.scene_ref import SceneRef
 from mitsuba_whitted.integrators.depth_first import LAUNCH_FACTOR, DepthFirstTracer
@@ -452,7 +453,7 @@ BAD = [
 
 @pytest.mark.parametrize("settings, parameter", BAD)
 def test_bad_parameter_names_plugin_and_parameter(settings, parameter):
-    with pytest.raises(RuntimeError, match=f"whitted: parameter '{parameter}'"):
+    with pytest.raises(ParameterError, match=f"^whitted: parameter '{parameter}'"):
         mi.load_dict(integrator(**settings))
 
 

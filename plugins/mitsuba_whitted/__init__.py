@@ -19,7 +19,8 @@ variant, and again after each ``mi.set_variant``, whichever comes first::
 
 A usable libLLVM is chosen before Dr.Jit loads one (see :mod:`.llvm`), and
 ``mi.render`` raises the plugins' errors and Ctrl-C as they were raised
-(see :mod:`.checked_render`).
+(see :mod:`.checked_render`), and so do Mitsuba's scene loaders (see
+:mod:`.checked_loading`).
 """
 
 # First, before any other import: in the command, Ctrl-C is handled from
@@ -55,6 +56,7 @@ llvm.configure()
 
 import mitsuba as mi  # noqa: E402  (after the libLLVM choice)
 
+from .checked_loading import LOADERS, checked_loader  # noqa: E402
 from .checked_render import checked  # noqa: E402
 from .scene_files import check_films, check_images, parse  # noqa: E402
 
@@ -127,4 +129,7 @@ def load_file(path: str, **defines):
 
 mi.detail.add_variant_callback(_on_variant_change)
 mi.render = checked(mi.render)
+for _loader in LOADERS:
+    setattr(mi, _loader, checked_loader(getattr(mi, _loader)))
+del _loader
 _register_plugins(mi.variant())

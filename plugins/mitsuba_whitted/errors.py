@@ -166,16 +166,48 @@ def _is_plain(name: str) -> bool:
     return name in _GENERIC_CLASSES or name in _package_exception_classes()
 
 
-def _package_exception_classes() -> set[str]:
-    """Names of the loaded exception classes defined in this package."""
+def _package_exception_classes() -> dict[str, type]:
+    """The loaded exception classes defined in this package, by name."""
     package = __name__.partition(".")[0]
-    names, pending = set(), [BaseException]
+    classes, pending = {}, [BaseException]
     while pending:
         for subclass in pending.pop().__subclasses__():
             pending.append(subclass)
             if subclass.__module__.partition(".")[0] == package:
-                names.add(subclass.__name__)
-    return names
+                classes[subclass.__name__] = subclass
+    return classes
+
+
+#: Where Mitsuba's scene loader says the plugin it could not make is:
+#: 'At dictionary node "i": failed to instantiate', 'At scene.xml (line 3,
+#: col 30): failed to instantiate'.
+_LOADER_PLACE = re.compile(r"At (.+?): failed to instantiate")
+#: The message of a :class:`ParameterError`.
+_PARAMETER_MESSAGE = re.compile(r"(\S+): parameter '(.*?)' (.*)", re.DOTALL)
+
+
+def own_loading_error(error: BaseException) -> BaseException | None:
+    """This package's error that a plugin raised while Mitsuba's loader
+    made it, raised anew with where the loader says the plugin is; ``None``
+    for any other error. The loader keeps only the text of what a Python
+    plugin raises: the plugin's traceback, formatted into the message of
+    its own ``RuntimeError``."""
+    heading, traceback, trace = str(error).rpartition(_TRACEBACK)
+    if not traceback:
+        return None
+    name, message = _last_exception(trace.strip("\n").splitlines())
+    kind = _package_exception_classes().get(name)
+    if kind is None:
+        return None
+    places = _LOADER_PLACE.findall(heading)
+    where = f", at {places[-1]}" if places else ""
+    parameter = _PARAMETER_MESSAGE.fullmatch(message.strip())
+    if issubclass(kind, ParameterError) and parameter:
+        return kind(parameter[1], parameter[2], parameter[3].rstrip(".") + where)
+    try:
+        return kind(message.strip() + where)
+    except TypeError:  # a class that is not made from its message alone
+        return None
 
 
 def _passes_size_limit(line: str) -> bool:
