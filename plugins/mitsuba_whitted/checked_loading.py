@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import functools
 
-from .errors import own_loading_error
+from .errors import own_loading_error, raising_own
 
 #: The loaders of ``mitsuba`` that make plugins from a description.
 LOADERS = ("load_dict", "load_file", "load_string")
@@ -26,12 +26,7 @@ def checked_loader(mitsuba_load):
     """``mitsuba_load`` that raises this package's errors unwrapped."""
     @functools.wraps(mitsuba_load)
     def load(*args, **kwargs):
-        try:
+        with raising_own(own_loading_error):
             return mitsuba_load(*args, **kwargs)
-        except RuntimeError as error:
-            own = own_loading_error(error)
-            if own is None:
-                raise
-            raise own from None
 
     return load

@@ -26,7 +26,7 @@ import sys
 
 import mitsuba as mi
 
-from .errors import ParameterError, VariantError, own_error
+from .errors import ParameterError, VariantError, own_error, raising_own
 from .parameters import check_seed
 from .render_lock import one_at_a_time
 
@@ -47,12 +47,8 @@ def checked(mitsuba_render):
             if name in arguments:
                 check_seed(arguments[name], "mi.render", name)
         try:
-            return mitsuba_render(*args, **kwargs)
-        except RuntimeError as error:
-            own = own_error(error)
-            if own is None:
-                raise
-            raise own from None
+            with raising_own(own_error):
+                return mitsuba_render(*args, **kwargs)
         finally:
             _interrupt_waits_again()
 

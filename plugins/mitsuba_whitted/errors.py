@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import errno
 import re
+from contextlib import contextmanager
 
 from .system import address_space_limit, describe_limit
 
@@ -52,6 +53,20 @@ def own_error(error: BaseException) -> BaseException | None:
     package = __name__.partition(".")[0]
     return next((link for link in _chain(error) if isinstance(link, KeyboardInterrupt)
                  or type(link).__module__.partition(".")[0] == package), None)
+
+
+@contextmanager
+def raising_own(find):
+    """Raise, in place of a ``RuntimeError`` of the block, the error of
+    this package that ``find`` finds in it (:func:`own_error`,
+    :func:`own_loading_error`), unwrapped; other errors pass unchanged."""
+    try:
+        yield
+    except RuntimeError as error:
+        own = find(error)
+        if own is None:
+            raise
+        raise own from None
 
 
 def _chain(error: BaseException):
