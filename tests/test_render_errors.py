@@ -88,9 +88,11 @@ def test_ctrl_c_during_a_render_is_a_keyboard_interrupt():
     assert np.isfinite(np.array(mi.render(loaded))).all()
 
 
-def test_a_scene_of_another_variant_is_one_sentence():
+@pytest.mark.parametrize("other", [name for name in ("scalar_rgb", "llvm_ad_mono")
+                                   if name in mi.variants()])
+def test_a_scene_of_another_variant_is_one_sentence(other):
+    """Another backend, and the same backend with another colour model."""
     loaded = small_scene()
-    other = "scalar_rgb"
     try:
         mitsuba_whitted.set_variant(other)
         with pytest.raises(VariantError) as refused:
