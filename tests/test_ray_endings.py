@@ -60,9 +60,10 @@ def _wait_for_a_render_task(job: subprocess.Popen) -> None:
 
 def _wait_for_stderr_kept_back(job: subprocess.Popen) -> None:
     """Until ``job``'s descriptor 2 is no longer the pipe it was started
-    with (Linux names it in /proc)."""
+    with (Linux names it in /proc). The pipe is named from this end: read
+    from ``job``'s side, it may already be kept back."""
     stderr = Path(f"/proc/{job.pid}/fd/2")
-    started_with = os.readlink(stderr)
+    started_with = f"pipe:[{os.fstat(job.stderr.fileno()).st_ino}]"
     deadline = time.monotonic() + COMMAND_SECONDS
     while job.poll() is None and time.monotonic() < deadline:
         with contextlib.suppress(OSError):
