@@ -20,6 +20,11 @@ from pathlib import Path
 
 #: Seconds a node may take to start, and to stop.
 START_SECONDS, STOP_SECONDS = 120, 30
+#: Seconds the processes of a node started by ``ray start`` (without
+#: ``--block``) have to end after SIGTERM: the head's GCS server and its
+#: Python companion outlive it for tens of seconds, and nothing of the
+#: test's cluster needs to end gracefully.
+GROUP_STOP_SECONDS = 3
 #: Each node's object store: the tests' images are a few kilobytes.
 OBJECT_STORE_BYTES = 256 * 2**20
 
@@ -140,8 +145,8 @@ def cluster_of_commands(commands: list[str], address: str, env: dict):
 
 def _stop_group(group: int) -> None:
     """SIGTERM to the process group, and SIGKILL to what is left of it after
-    :data:`STOP_SECONDS`."""
-    deadline = time.monotonic() + STOP_SECONDS
+    :data:`GROUP_STOP_SECONDS`."""
+    deadline = time.monotonic() + GROUP_STOP_SECONDS
     with contextlib.suppress(ProcessLookupError):
         os.killpg(group, signal.SIGTERM)
         while time.monotonic() < deadline:
