@@ -318,8 +318,8 @@ def blocked(tmp_path) -> Path:
     return blocker
 
 
-@pytest.mark.parametrize("command", ["render-folder", "render-suffix", "bench", "compare",
-                                     "render-many"])
+@pytest.mark.parametrize("command", ["render-folder", "render-into-folder", "render-suffix",
+                                     "bench", "compare", "render-many"])
 def test_the_output_is_checked_before_the_work_starts(tmp_path, monkeypatch, capsys, command):
     def never(*args, **kwargs):
         raise AssertionError("the work started")
@@ -331,6 +331,8 @@ def test_the_output_is_checked_before_the_work_starts(tmp_path, monkeypatch, cap
     argv, problem = {
         "render-folder": (["render", str(REPORT_SCENE), "-o", str(blocker / "x.png")],
                           f"'{blocker}' is a file, not a folder"),
+        "render-into-folder": (["render", str(REPORT_SCENE), "-o", str(tmp_path)],
+                               f"cannot write '{tmp_path}': it is a folder."),
         "render-suffix": (["render", str(REPORT_SCENE), "-o", str(tmp_path / "x.gif")],
                           "use one of .exr, .hdr, .jpeg, .jpg, .pfm, .png"),
         "bench": (["bench", "--quick", "--json", str(blocker / "b.json")],

@@ -120,3 +120,18 @@ def test_a_none_value_does_not_end_the_interpreter():
     bare = subprocess.run([sys.executable, "-c", call.replace("LOAD", "mi.load_dict.__wrapped__")],
                           capture_output=True, text=True, timeout=120)
     assert bare.returncode < 0
+
+
+def test_a_sentence_of_the_package_ends_once_before_its_place():
+    """A refusal that is not a parameter's (a variant without RGB) keeps its
+    sentence and its place in one sentence, without a full stop between."""
+    scene = '<scene version="3.0.0"><integrator type="whitted"/></scene>'
+    variant = mi.variant()
+    try:
+        mi.set_variant("llvm_ad_mono")
+        with pytest.raises(Exception) as refused:
+            mi.load_string(scene)
+    finally:
+        mi.set_variant(variant)
+    assert str(refused.value).startswith("whitted: only RGB variants are supported")
+    assert "'cuda_ad_rgb', at string" in str(refused.value)

@@ -407,6 +407,14 @@ def test_integrator_settings_are_checked_and_a_refused_update_changes_nothing(
     np.testing.assert_array_equal(updated, loaded_with_valid_max_depth())
 
 
+@pytest.mark.parametrize("text", ["2.5", "deep"])
+def test_a_whole_number_setting_given_text_asks_for_a_whole_number(text):
+    with pytest.raises(ParameterError) as refused:
+        integrator_scene(max_depth=text)
+    assert str(refused.value).startswith(
+        f"whitted: parameter 'max_depth' must be a whole number (got '{text}')")
+
+
 def test_integrator_modes_are_shown_but_not_updated():
     params = mi.traverse(integrator_scene().integrator())
     assert params["aa"] == "grid" and params["shadows"] == "physical"

@@ -220,7 +220,7 @@ def own_loading_error(error: BaseException) -> BaseException | None:
     if issubclass(kind, ParameterError) and parameter:
         return kind(parameter[1], parameter[2], parameter[3].rstrip(".") + where)
     try:
-        return kind(message.strip() + where)
+        return kind(message.strip().rstrip(".") + where)
     except TypeError:  # a class that is not made from its message alone
         return None
 

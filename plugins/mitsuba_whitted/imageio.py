@@ -48,7 +48,7 @@ def check_image_path(path: str | Path) -> Path:
     """``path`` if an image can be written there (a known suffix, a
     writable folder), else an :class:`ImageWriteError`; checked before a
     render, so that none is thrown away."""
-    return check_writable(_known_format(path))
+    return _known_format(check_writable(path))
 
 
 def _known_format(path: str | Path) -> Path:

@@ -49,7 +49,10 @@ INT32_RANGE = (-(1 << 31), (1 << 31) - 1)
 
 def _whole(default: int):
     def read(props: mi.Properties, name: str) -> int:
-        value = checked_numbers(_given(props, name, default), PLUGIN_NAME, name)[0]
+        given = _given(props, name, default)
+        check(not isinstance(given, str), PLUGIN_NAME, name,
+              f"must be a whole number (got {describe(given)})")
+        value = checked_numbers(given, PLUGIN_NAME, name)[0]
         check(value == int(value), PLUGIN_NAME, name, f"must be a whole number (got {value:g})")
         low, high = INT32_RANGE
         check(low <= value <= high, PLUGIN_NAME, name,
