@@ -104,7 +104,7 @@ def test_a_none_value_is_refused_naming_its_plugin_key_and_node():
     assert str(refused.value) == ("tartan: parameter 'color' is None: give it a value or leave "
                                   'it out, at dictionary node "ball.bsdf.reflectance"')
     with pytest.raises(ParameterError, match="^diffuse: parameter 'reflectance' is None"):
-        mi.load_dict({"type": "diffuse", "reflectance": None})
+        mi.load_dict(dict={"type": "diffuse", "reflectance": None})
 
 
 def test_a_none_value_does_not_end_the_interpreter():

@@ -30,8 +30,8 @@ def checked_loader(mitsuba_load):
     """``mitsuba_load`` that raises this package's errors unwrapped."""
     @functools.wraps(mitsuba_load)
     def load(*args, **kwargs):
-        if mitsuba_load.__name__ == "load_dict" and args and isinstance(args[0], dict):
-            refuse_none_values(args[0])
+        if mitsuba_load.__name__ == "load_dict":
+            refuse_none_values(args[0] if args else kwargs.get("dict"))
         with raising_own(own_loading_error):
             return mitsuba_load(*args, **kwargs)
 
@@ -41,7 +41,10 @@ def checked_loader(mitsuba_load):
 def refuse_none_values(description: dict, node: str = "") -> None:
     """A :class:`ParameterError` for the first ``None`` in the scene
     dictionary ``description`` (nested dictionaries included), which
-    Mitsuba's ``load_dict`` would crash on."""
+    Mitsuba's ``load_dict`` would crash on; anything but a dictionary is
+    left to Mitsuba."""
+    if not isinstance(description, dict):
+        return
     for key, value in description.items():
         where = f"{node}.{key}" if node else str(key)
         if value is None:
@@ -49,5 +52,4 @@ def refuse_none_values(description: dict, node: str = "") -> None:
             place = f', at dictionary node "{node}"' if node else ""
             raise ParameterError(str(plugin), str(key),
                                  f"is None: give it a value or leave it out{place}")
-        if isinstance(value, dict):
-            refuse_none_values(value, where)
+        refuse_none_values(value, where)
