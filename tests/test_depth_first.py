@@ -9,9 +9,9 @@ import pytest
 from conftest import assert_finite
 from validation.scenes import (REPORT_SCENE, ROOT, camera, floor, glass_scene, integrator,
                                point_light, rgb, scene, sphere, wall)
-from mitsuba_whitted.integrators.depth_first import (MAX_STACK, DepthFirstTracer, LaneStack,
-                                                     stack_capacity)
-from mitsuba_whitted.integrators.wavefront import WavefrontTracer
+from mitsuba_whitted.integrators.tracers.depth_first import (MAX_STACK, DepthFirstTracer,
+                                                             LaneStack, stack_capacity)
+from mitsuba_whitted.integrators.tracers.wavefront import WavefrontTracer
 
 CAPACITY = 6
 ROOTS = [0.5, 3.0, 10.0, 7.0, 2.2, 30.0, 1.5, 4.0, 12.0, 0.1, 17.0, 2.0]

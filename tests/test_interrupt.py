@@ -26,7 +26,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from mitsuba_whitted.integrators.frozen import FrozenKernel
+from mitsuba_whitted.integrators.tracers.frozen import FrozenKernel
 from mitsuba_whitted.compare.scene_report import FOLDER_MARK
 from mitsuba_whitted.interrupt import STOPPING
 from validation.scenes import REPORT_SCENE, ROOT

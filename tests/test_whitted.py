@@ -14,7 +14,7 @@ from conftest import assert_finite
 from mitsuba_whitted.errors import ParameterError
 from mitsuba_whitted.integrators.scene_needs import analyse
 from mitsuba_whitted.integrators.scene_ref import SceneRef
-from mitsuba_whitted.integrators.depth_first import LAUNCH_FACTOR, DepthFirstTracer
+from mitsuba_whitted.integrators.tracers.depth_first import LAUNCH_FACTOR, DepthFirstTracer
 from validation.oracles.fresnel import reflectance
 from validation.scenes import (camera, diffuse, floor, glass_scene, integrator, point_light, rgb, scene,
                     sphere)

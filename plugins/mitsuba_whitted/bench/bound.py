@@ -1,7 +1,7 @@
 """The ray-casting bound of a render, and where its time goes.
 
 The bound: a capturing render keeps every ray it casts (``capture_rays``,
-:class:`~mitsuba_whitted.integrators.tracer.CapturedBatch`), and those rays
+:class:`~mitsuba_whitted.integrators.tracers.base.CapturedBatch`), and those rays
 are cast again through Mitsuba's own ``scene.ray_intersect`` (camera,
 reflected, refracted and pass-through rays), ``scene.ray_test`` (the shadow
 rays) and ``scene.ray_intersect`` again (the closest-hit queries that

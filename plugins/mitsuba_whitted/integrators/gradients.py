@@ -65,7 +65,7 @@ import mitsuba as mi
 from ..camera import camera_rays
 from ..errors import ParameterError, VariantError
 from ..jit import concat, index_range
-from .tracer import RayBatch
+from .tracers import RayBatch
 
 PLUGIN_NAME = "whitted"
 #: A shape's parameters whose change moves its surface.

@@ -1,8 +1,8 @@
 """What one Whitted hit computes: its local radiance and its delta children.
 
-Both tracers share this: the wavefront tracer (:mod:`.wavefront`) calls it
+Both tracers share this: the wavefront tracer (:mod:`.tracers.wavefront`) calls it
 once per generation with Python flags that leave unneeded work out of the
-kernel, the depth-first tracer (:mod:`.depth_first`) calls it inside its
+kernel, the depth-first tracer (:mod:`.tracers.depth_first`) calls it inside its
 loop with per-lane masks, since lanes there are at different depths of
 their trees.
 """

@@ -18,8 +18,8 @@ from .lighting import LightingSettings
 from .scene_needs import SceneNeeds, analyse
 from .scene_ref import identity
 from .shading import MAX_TREE_RAYS, TreeSettings
-from .tracer import RayBatch
-from .tracing import build_tracer
+from .tracers import RayBatch
+from .tracers import build_tracer
 
 PLUGIN_NAME = "whitted"
 
@@ -335,7 +335,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
 
     @property
     def last_rays(self):
-        """A :class:`~.tracer.CapturedBatch` of every batch the last render
+        """A :class:`~.tracers.base.CapturedBatch` of every batch the last render
         traced (its rays and its shadow rays), if ``capture_rays`` was set."""
         return self._last.rays
 
@@ -372,7 +372,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     def make_tracer(self, scene: mi.Scene, seed: int = 0, wavefront: bool = False,
                     needs: SceneNeeds = None, differentiable: bool = False):
         """A tracer of ``scene`` with this integrator's settings
-        (:func:`.tracing.build_tracer`; ``wavefront`` asks for the wavefront
+        (:func:`.tracers.build_tracer`; ``wavefront`` asks for the wavefront
         tracer, e.g. to capture each generation's rays, ``differentiable``
         for one whose traces Dr.Jit can differentiate, ambient term
         included). ``needs`` replaces ``analyse(scene)``, e.g. to trace with

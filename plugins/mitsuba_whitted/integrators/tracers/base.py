@@ -10,7 +10,7 @@ Two implementations stand side by side over the base here:
   compacted between generations: any depth, and every ray it casts can be
   kept (``captured``) for the bench to replay.
 
-:func:`.tracing.build_tracer` assembles a tracer for a scene and picks the
+:func:`.build.build_tracer` assembles a tracer for a scene and picks the
 implementation.
 """
 
@@ -21,9 +21,9 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
-from ..camera import camera_rays
-from ..jit import to_int
-from .shading import HitShader
+from ...camera import camera_rays
+from ...jit import to_int
+from ..shading import HitShader
 
 
 @dataclass

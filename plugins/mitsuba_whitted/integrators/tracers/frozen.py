@@ -17,7 +17,7 @@ from contextlib import contextmanager
 import drjit as dr
 import mitsuba as mi
 
-from ..errors import caused_by, one_sentence
+from ...errors import caused_by, one_sentence
 
 
 @contextmanager

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
-from ..jit import to_int
+from ...jit import to_int
 
 
 def no_rays() -> mi.Ray3f:

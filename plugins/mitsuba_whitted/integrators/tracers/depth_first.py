@@ -38,11 +38,11 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
-from ..camera import camera_rays
-from .bsdf_query import KIND_CODES
+from ...camera import camera_rays
+from ..bsdf_query import KIND_CODES
+from ..shading import MAX_TREE_RAYS, HitShader
+from .base import RayBatch, Tracer
 from .frozen import FrozenKernel
-from .shading import MAX_TREE_RAYS, HitShader
-from .tracer import RayBatch, Tracer
 
 #: Most rays one lane's stack holds; deeper trees use the wavefront tracer.
 MAX_STACK = 32

@@ -23,12 +23,12 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from ..jit import index_range, sum_blocks
-from .bsdf_query import KIND_CODES
+from ...jit import index_range, sum_blocks
+from ..bsdf_query import KIND_CODES
+from ..shading import MAX_TREE_RAYS, HitShader, HitWork
+from .base import CapturedBatch, RayBatch, Tracer
 from .frozen import FrozenKernel
-from .shading import MAX_TREE_RAYS, HitShader, HitWork
 from .shadow_log import ShadowLog, no_rays
-from .tracer import CapturedBatch, RayBatch, Tracer
 
 
 class WavefrontTracer(Tracer):

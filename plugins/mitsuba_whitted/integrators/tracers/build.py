@@ -5,14 +5,14 @@ from __future__ import annotations
 
 import mitsuba as mi
 
-from .analytic import AnalyticRefiner
+from ..analytic import AnalyticRefiner
+from ..indirect import IndirectLight
+from ..lighting import DirectLighting, LightingSettings, ShadowTester
+from ..scene_needs import SceneNeeds
+from ..scene_ref import SceneRef
+from ..shading import HitShader, TreeSettings
+from .base import Tracer
 from .depth_first import DepthFirstTracer
-from .indirect import IndirectLight
-from .lighting import DirectLighting, LightingSettings, ShadowTester
-from .scene_needs import SceneNeeds
-from .scene_ref import SceneRef
-from .shading import HitShader, TreeSettings
-from .tracer import Tracer
 from .wavefront import WavefrontTracer
 
 
