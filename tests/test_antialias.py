@@ -15,9 +15,10 @@ import numpy as np
 import pytest
 
 from conftest import assert_finite
-from mitsuba_whitted.integrators.antialias import (AdaptiveSampler, Band, ContrastSampler,
+from mitsuba_whitted.integrators.antialias import (AdaptiveSampler, ContrastSampler,
                                                    SampleBudget, neighbourhood_contrast,
                                                    render_grid)
+from mitsuba_whitted.integrators.render_plan import Band
 from validation.scenes import camera, integrator, rgb, scene
 
 WIDTH, HEIGHT = 6, 4

@@ -38,48 +38,21 @@ import mitsuba as mi
 from ..jit import full_width, in_launches, index_range, opaque_float, read_runs, sum_blocks
 from ..mathutil import hammersley
 from . import lens as lens_points
+from .render_plan import Band
 
 #: Offsets (dy, dx) of a pixel's 8 neighbours.
 NEIGHBOURS = tuple((dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx) != (0, 0))
 
 #: ``shade(positions, keys, lens=None, share=1) -> (radiance, alpha)``, or
 #: ``(radiance, alpha, decision)``: positions are in pixel units inside the
-#: crop window, keys identify samples for decorrelation, ``share`` is how
-#: many camera samples of the pattern cover a pixel (among which a pixel's
-#: indirect paths are shared). ``decision``, where given, is the radiance
+#: crop window, keys identify samples for decorrelation, ``lens`` holds
+#: their points of the aperture (``None``: its centre, a pinhole), ``share``
+#: is how many camera samples of the pattern cover a pixel (among which a
+#: pixel's indirect paths are shared). ``decision``, where given, is the radiance
 #: the patterns decide refinement by: the noiseless part of ``radiance``,
 #: so that noise does not read as contrast. A shader may say how many
 #: samples it traces in one launch (``batch``).
 ShadeFn = Callable[..., tuple]
-
-
-@dataclass(frozen=True)
-class Band:
-    """Rows ``first_row`` to ``first_row + rows - 1`` of a crop window
-    ``width`` x ``height`` pixels: the part of the film one pass renders."""
-    width: int
-    height: int
-    first_row: int
-    rows: int
-
-    @classmethod
-    def whole(cls, width: int, height: int) -> "Band":
-        return cls(width, height, 0, height)
-
-    @property
-    def pixels(self) -> int:
-        return self.width * self.rows
-
-    @property
-    def first_pixel(self) -> int:
-        """Row-major index of the band's first pixel in the crop window."""
-        return self.first_row * self.width
-
-    def widened(self, margin: int) -> "Band":
-        """The band with up to ``margin`` more rows above and below."""
-        first = max(self.first_row - margin, 0)
-        last = min(self.first_row + self.rows + margin, self.height)
-        return Band(self.width, self.height, first, last - first)
 
 
 @dataclass

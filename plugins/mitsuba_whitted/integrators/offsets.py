@@ -14,7 +14,7 @@ terminator), and smaller scenes get offsets that shrink with them.
 The price is that offsets are not a fixed share of a scene larger than a
 unit: such a scene and its copy scaled by 1000 trace slightly different
 rays, and a ray that bounces many times inside glass may end on the other
-side of an edge in one of them (``validation/stability.py``).
+side of an edge in one of them (``validation/stability/acne.py``).
 """
 
 from __future__ import annotations

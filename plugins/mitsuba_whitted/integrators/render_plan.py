@@ -26,7 +26,6 @@ from dataclasses import dataclass
 
 from ..errors import ParameterError
 from ..system import available_memory, available_text
-from .antialias import Band
 
 PLUGIN_NAME = "whitted"
 
@@ -50,6 +49,35 @@ JIT_ENTRIES = 1 << 32
 RESERVE = 256 << 20
 
 GIB = float(1 << 30)
+
+
+@dataclass(frozen=True)
+class Band:
+    """Rows ``first_row`` to ``first_row + rows - 1`` of a crop window
+    ``width`` x ``height`` pixels: the part of the film one pass renders."""
+    width: int
+    height: int
+    first_row: int
+    rows: int
+
+    @classmethod
+    def whole(cls, width: int, height: int) -> "Band":
+        return cls(width, height, 0, height)
+
+    @property
+    def pixels(self) -> int:
+        return self.width * self.rows
+
+    @property
+    def first_pixel(self) -> int:
+        """Row-major index of the band's first pixel in the crop window."""
+        return self.first_row * self.width
+
+    def widened(self, margin: int) -> "Band":
+        """The band with up to ``margin`` more rows above and below."""
+        first = max(self.first_row - margin, 0)
+        last = min(self.first_row + self.rows + margin, self.height)
+        return Band(self.width, self.height, first, last - first)
 
 
 @dataclass(frozen=True)
