@@ -17,7 +17,8 @@ import pytest
 import mitsuba_whitted
 from conftest import SRGB_TO_XYZ, cli, one_line
 from mitsuba_whitted import imageio, startup
-from mitsuba_whitted.cli import main, run_command
+from mitsuba_whitted.cli import main
+from mitsuba_whitted.command import run_command
 from mitsuba_whitted.compare.scene_report import FOLDER_MARK
 from mitsuba_whitted.files import ReadError
 from mitsuba_whitted.imageio import read_image, to_8bit, write_image
@@ -220,7 +221,8 @@ def test_bad_input_is_one_sentence(args, message):
 
 
 VALIDATION_BAD_INPUT = [
-    ("validation.run", ["--workers", "0"], "--workers must be at least 1 (got 0)"),
+    ("validation.run", ["--workers", "0"],
+     "argument --workers: expected a whole number of at least 1, got '0'"),
     ("validation.run", ["--bogus"], "validation.run: unrecognized arguments: --bogus"),
     ("validation.inverse_texture", ["--iterations", "0"],
      "argument --iterations: expected a whole number of at least 1, got '0'"),

@@ -280,13 +280,20 @@ def test_bad_input_to_compare_is_one_sentence(tmp_path, body, message):
     assert message in one_line(result.stderr)
 
 
-@pytest.mark.parametrize("spp", ["4", "-1", str(2**32), str(2**40)])
-def test_a_reference_sample_count_out_of_range_is_one_sentence(tmp_path, spp):
-    """Fewer samples than passes, or more than ``mi.render``'s 32-bit count."""
+@pytest.mark.parametrize("spp, message", [
+    ("4", "--reference-spp must be from 16 to 4294967295 (got 4)"),
+    (str(2**32), f"--reference-spp must be from 16 to 4294967295 (got {2**32})"),
+    (str(2**40), f"--reference-spp must be from 16 to 4294967295 (got {2**40})"),
+    ("-1", "argument --reference-spp: expected a whole number of at least 1, got '-1'"),
+    ("many", "argument --reference-spp: expected a whole number of at least 1, got 'many'"),
+])
+def test_a_reference_sample_count_out_of_range_is_one_sentence(tmp_path, spp, message):
+    """Not a count, fewer samples than passes, or more than ``mi.render``'s
+    32-bit count."""
     result = cli("compare", str(REPORT_SCENE), "--reference-spp", spp, "--out", str(tmp_path),
                  timeout=300)
     assert result.returncode == 2
-    assert f"--reference-spp must be from 16 to 4294967295 (got {spp})" in one_line(result.stderr)
+    assert message in one_line(result.stderr)
     assert list(tmp_path.iterdir()) == []
 
 

@@ -166,7 +166,7 @@ def test_every_anti_aliasing_level_replays_one_recording():
     for _ in range(3):
         mi.render(loaded)
         assert loaded.integrator().last_stats["aa_levels"] == 4
-        assert loaded.integrator()._last.tracer._camera_kernel.frozen.n_recordings == 1
+        assert loaded.integrator()._state.tracer._camera_kernel.frozen.n_recordings == 1
 
 
 def _change_lights_and_colours(loaded):
@@ -186,10 +186,10 @@ def test_a_reused_tracer_sees_parameter_updates():
     path = str(ROOT / "scenes" / "cases" / "cylinder.xml")
     loaded = mi.load_file(path, res="32")
     before = np.array(mi.render(loaded))
-    tracer = loaded.integrator()._last.tracer
+    tracer = loaded.integrator()._state.tracer
     _change_lights_and_colours(loaded)
     reused = np.array(mi.render(loaded))
-    assert loaded.integrator()._last.tracer is tracer
+    assert loaded.integrator()._state.tracer is tracer
     copy = mi.load_file(path, res="32")
     _change_lights_and_colours(copy)
     fresh = np.array(mi.render(copy))
@@ -250,7 +250,7 @@ def _render_with(kind, renders=3):
     for _ in range(renders):
         image = np.array(mi.render(loaded, integrator=whitted))
         assert_finite(image)
-    return image, whitted._last.tracer
+    return image, whitted._state.tracer
 
 
 @pytest.mark.parametrize("kind", ["thinlens", "orthographic"])

@@ -105,7 +105,8 @@ def _twin(tmp_path):
 @pytest.mark.parametrize("make_args, words", [
     (lambda tmp: [str(REPORT_SCENE), str(tmp / "missing.xml")], "missing.xml' does not exist"),
     (_twin, "would both be written to"),
-    (lambda tmp: [str(REPORT_SCENE), "--workers", "0"], "--workers must be at least 1"),
+    (lambda tmp: [str(REPORT_SCENE), "--workers", "0"],
+     "argument --workers: expected a whole number of at least 1, got '0'"),
 ])
 def test_render_many_refuses_bad_input_in_one_sentence(tmp_path, make_args, words):
     out = tmp_path / "out"

@@ -300,18 +300,14 @@ def test_forward_mode_holds_no_more_than_one_band_of_launches(monkeypatch):
     key, component = "lens.bsdf.specular_transmittance.value", 1
     whole = forward_image(described, key, component)
     held = []
-    recording_shader = gradients.recording_shader
 
-    def counting_shader(base, tangent=None):
-        class CountingShader(recording_shader(base, tangent)):
-            def __call__(self, *args):
-                result = super().__call__(*args)
-                held.append((self.label, len(self.launches)))
-                return result
+    class CountingShader(gradients.RecordingShader):
+        def __call__(self, *args):
+            result = super().__call__(*args)
+            held.append((self.label, len(self.launches)))
+            return result
 
-        return CountingShader
-
-    monkeypatch.setattr(gradients, "recording_shader", counting_shader)
+    monkeypatch.setattr(gradients, "RecordingShader", CountingShader)
     # Four rows of 16 pixels per band, one sample each (aa 'grid' reduces
     # its samples launch by launch): four bands.
     monkeypatch.setattr(render_plan, "BAND_SAMPLES", 4 * 16)
@@ -532,7 +528,7 @@ def test_a_variant_without_differentiation_is_refused():
     try:
         mi.set_variant("scalar_rgb")
         with pytest.raises(VariantError, match="^whitted: gradients need"):
-            gradients.require_differentiable_variant()
+            gradients.require_differentiable(0)
     finally:
         mi.set_variant("llvm_ad_rgb")
 

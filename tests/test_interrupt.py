@@ -192,7 +192,7 @@ def test_a_real_hang_up_ends_the_command_without_its_last_words(tmp_path, sample
 LAST_WRITE = """
 import os, signal, sys, time
 from mitsuba_whitted import files, interrupt
-from mitsuba_whitted.cli import run_command
+from mitsuba_whitted.command import run_command
 
 target, when, signum = sys.argv[1], sys.argv[2], int(sys.argv[3])
 replace = os.replace
@@ -263,7 +263,7 @@ def test_a_signal_during_an_import_or_a_held_off_step_lets_it_finish(tmp_path, s
     (tmp_path / "slow_step.py").write_text(SLOW_STEP)
     command = ("import os, sys, time\n"
                f"sys.path.append({str(tmp_path)!r})\n"
-               "from mitsuba_whitted.cli import run_command\n"
+               "from mitsuba_whitted.command import run_command\n"
                "def work():\n" + step +
                "    time.sleep(30)\n"
                "sys.exit(run_command(work))\n")

@@ -28,7 +28,7 @@ import time
 import numpy as np
 
 import mitsuba_whitted
-from mitsuba_whitted.cli import CommandParser, count, run_command
+from mitsuba_whitted.command import CommandParser, count, run_command
 from mitsuba_whitted.compare.reference import path_settings, reference_tasks, render_reference
 from mitsuba_whitted.files import check_writable, write_text
 from mitsuba_whitted.jit import timed

@@ -27,7 +27,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from mitsuba_whitted.cli import CommandParser, count, run_command
+from mitsuba_whitted.command import CommandParser, count, run_command
 from mitsuba_whitted.files import check_folder, write_text
 from mitsuba_whitted.imageio import write_image
 from validation.scenes import camera, point_light, rgb, sphere, wall

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import sys
 
-from mitsuba_whitted.cli import run_command
+from mitsuba_whitted.command import run_command
 from validation.inverse_texture import main
 
 

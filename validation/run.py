@@ -16,7 +16,7 @@ import mitsuba_whitted
 import mitsuba as mi
 import numpy as np
 
-from mitsuba_whitted.cli import CommandParser, add_cluster_options, run_command
+from mitsuba_whitted.command import CommandParser, add_cluster_options, run_command
 from mitsuba_whitted.compare import (PATH_SAMPLERS, CompareOptions, ReferenceCache, Setting,
                                      cache_key, cached_reference, equivalence_test,
                                      estimate_text, loaded_source, luminance, measure_scene,

@@ -10,23 +10,17 @@
 from __future__ import annotations
 
 import argparse
-import re
-import select
-import signal
 import sys
 import time
-import warnings
-from contextlib import contextmanager, suppress
 
 import mitsuba as mi
 
 from . import files
-from .errors import UsageError, caused_by, one_sentence
-from .interrupt import InterruptGuard, last_write
+from .command import CommandParser, add_cluster_options, count, run_command
+from .errors import UsageError
+from .interrupt import last_write
 from .progress import Progress
 from .scene_files import check_not_read
-from .startup import exit_code, interrupted_line
-from .system import to_null
 
 
 def _parse_defines(pairs: list[str]) -> dict:
@@ -187,16 +181,6 @@ def _add_scene_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--variant", default=DEFAULT_VARIANT)
 
 
-def add_cluster_options(parser: argparse.ArgumentParser) -> None:
-    """Where the tasks run: in this process unless one of these is given."""
-    parser.add_argument("--workers", type=int, metavar="N",
-                        help="run the tasks on N Ray workers (a local Ray unless --cluster "
-                        "or $RAY_ADDRESS)")
-    parser.add_argument("--cluster", metavar="ADDRESS",
-                        help="run the tasks on the Ray cluster at ADDRESS (HOST:PORT; "
-                        "default $RAY_ADDRESS)")
-
-
 def build_parser() -> argparse.ArgumentParser:
     from . import DEFAULT_VARIANT
 
@@ -217,7 +201,7 @@ def build_parser() -> argparse.ArgumentParser:
     compare.add_argument("scene", help="Mitsuba scene file (XML)")
     compare.add_argument("--out", help="report directory (default compare-SCENE); the path "
                          "reference is cached in OUT/cache")
-    compare.add_argument("--reference-spp", type=int,
+    compare.add_argument("--reference-spp", type=count,
                          help="samples per pixel of the path reference (default 1024, quick 64)")
     compare.add_argument("--quick", action="store_true",
                          help="fewer settings and a cheaper reference, for a first look")
@@ -251,142 +235,9 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-class CommandParser(argparse.ArgumentParser):
-    """Bad arguments in one line (argparse prints its usage first)."""
-
-    def error(self, message):
-        self.exit(2, f"{self.prog}: {message}; '{self.prog} --help' lists the options.\n")
-
-
-def count(text: str) -> int:
-    """An argument's type: a whole number of at least 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a whole number of at least 1, got '{text}'")
-    return value
-
-
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     return run_command(args.run, args)
-
-
-def erase_line(stream) -> str:
-    """What erases a progress line on a terminal (nothing elsewhere)."""
-    return "\r" + " " * 79 + "\r" if stream.isatty() else ""
-
-
-def run_command(function, *args, program: str = "mitsuba-whitted") -> int:
-    """``function(*args)`` as a command: its warnings on stderr in plain
-    lines, any error as one sentence (exit code 2), Ctrl-C as one line and
-    exit code 130 (143 for SIGTERM, ...; see :mod:`.interrupt`), no partial
-    file either way. Output into a pipe that its reader has closed ends
-    the command quietly with 141, as SIGPIPE would."""
-    def last_words(signum):
-        files.discard_pending()
-        _say(erase_line(sys.stderr) + interrupted_line(program, signum))
-
-    with InterruptGuard(last_words) as guard:
-        try:
-            with plain_warnings():
-                code = function(*args)
-            sys.stdout.flush()  # a closed pipe shows here, not at the exit
-            return code
-        except SystemExit:
-            raise
-        except BaseException as error:
-            if guard.requested.is_set() or caused_by(error, KeyboardInterrupt):
-                guard.stop()
-            if caused_by(error, BrokenPipeError) and _silence_closed_pipes():
-                return exit_code(signal.SIGPIPE)
-            _say(one_sentence(error) + "\n")
-    return 2
-
-
-def _say(text: str) -> None:
-    """``text`` on stderr, if anything still reads it (a terminal that hung
-    up, a closed pipe: the command ends all the same)."""
-    with suppress(OSError, ValueError):
-        sys.stderr.write(text)
-        sys.stderr.flush()
-
-
-def _silence_closed_pipes() -> bool:
-    """Whether stdout or stderr is a pipe whose reader has gone; each such
-    stream then writes to /dev/null, so that nothing more fails on it
-    (Python flushes them at the exit)."""
-    closed = [stream.fileno() for stream in (sys.stdout, sys.stderr) if _reader_gone(stream)]
-    for descriptor in closed:
-        to_null(descriptor)
-    return bool(closed)
-
-
-def _reader_gone(stream) -> bool:
-    """Whether ``stream`` is a pipe or socket without a reader: the system
-    then reports an error condition on it."""
-    try:
-        poller = select.poll()
-        poller.register(stream.fileno(), select.POLLOUT)
-        return any(events & select.POLLERR for _, events in poller.poll(0))
-    except (AttributeError, OSError, ValueError):
-        return False
-
-
-class _PlainFormatter(mi.Formatter):
-    """"warning: MESSAGE", without the date, thread and source location."""
-
-    #: Mitsuba's ``mi.Log`` puts the calling Python function before the message.
-    CALLER = re.compile(r"^[\w<>]+(?:\(\))?: ")
-
-    def format(self, level, class_name, file_name, line, message):
-        if file_name.endswith(".py"):
-            message = self.CALLER.sub("", message)
-        word = "warning" if level == mi.LogLevel.Warn else level.name.lower()
-        return f"{word}: {message}"
-
-
-class _StderrAppender(mi.Appender):
-    """Log lines on stderr (Mitsuba's own appender writes them to stdout,
-    in colour even where it is not a terminal)."""
-
-    #: Logged by Mitsuba's own integrators on Ctrl-C; the command says
-    #: that it was interrupted in a line of its own.
-    WINDING_DOWN = "Received interrupt signal, winding down"
-
-    def append(self, level, text):
-        if self.WINDING_DOWN not in text:
-            sys.stderr.write(text + "\n")
-            sys.stderr.flush()
-
-    def log_progress(self, progress, name, formatted, eta, ptr=None):
-        pass  # the commands show their own progress
-
-
-@contextmanager
-def plain_warnings():
-    """Mitsuba's log and Python's warnings as plain lines on stderr."""
-    logger = mi.logger()
-    appenders = [logger.appender(i) for i in range(logger.appender_count())]
-    formatter = logger.formatter()
-    logger.clear_appenders()
-    logger.add_appender(_StderrAppender())
-    logger.set_formatter(_PlainFormatter())
-    with warnings.catch_warnings():
-        warnings.showwarning = _show_warning
-        try:
-            yield
-        finally:
-            logger.clear_appenders()
-            for appender in appenders:
-                logger.add_appender(appender)
-            logger.set_formatter(formatter)
-
-
-def _show_warning(message, category, filename, lineno, file=None, line=None):
-    sys.stderr.write(f"warning: {message}\n")
 
 
 if __name__ == "__main__":

@@ -4,7 +4,7 @@ with 128 plus the signal's number (130 for SIGINT, 143 for SIGTERM, 129
 for SIGHUP, 131 for SIGQUIT) and leaves no partial file. These are the
 signals a terminal or a job runner sends to stop a command; SIGPIPE is
 left to Python, which ignores it and raises ``BrokenPipeError`` at the
-write instead (see ``cli.run_command``).
+write instead (see ``command.run_command``).
 
 A command whose last file is in place has succeeded: a signal that comes
 after the rename that put it there no longer stops it, and one that came

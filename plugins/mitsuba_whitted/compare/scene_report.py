@@ -20,7 +20,7 @@ import numpy as np
 from .. import load_file
 from ..distributed import SceneSource
 from ..files import check_folder, check_readable, write_text
-from ..film_format import developed_format, develops_to_rgb
+from ..integrators.film import developed_format, develops_to_rgb
 from ..scene_files import check_not_read
 from ..system import machine
 from .cache import ReferenceCache, cache_key

@@ -56,6 +56,7 @@ order. The same scene and adjoint give the same gradient bit for bit.
 
 from __future__ import annotations
 
+import dataclasses
 from contextlib import contextmanager
 from dataclasses import dataclass
 
@@ -63,11 +64,13 @@ import drjit as dr
 import mitsuba as mi
 
 from ..camera import camera_rays
-from ..errors import ParameterError, VariantError
+from ..errors import ParameterError, VariantError, check
 from ..jit import concat, index_range
+from .camera_shader import CameraShader
+from .render_plan import Demand
+from .settings import PLUGIN_NAME
 from .tracers import RayBatch
 
-PLUGIN_NAME = "whitted"
 #: A shape's parameters whose change moves its surface.
 GEOMETRY = ("vertex_positions", "to_world", "center", "radius", "height")
 #: Camera samples traced at once, in units of ``wavefront_size``: tracing a
@@ -81,13 +84,37 @@ _NOT_GEOMETRY = ("which whitted does not differentiate (silhouettes would move);
                  "differentiate materials, textures, lights or the ambient term")
 
 
-def require_differentiable_variant() -> None:
+def require_differentiable(indirect_samples: int) -> None:
     """One sentence where the active variant has no automatic
-    differentiation."""
+    differentiation, or the integrator gathers indirect light."""
     if not dr.is_diff_v(mi.Float):
         raise VariantError(
             f"{PLUGIN_NAME}: gradients need a variant with automatic differentiation such as "
             f"'llvm_ad_rgb' (the active variant is '{mi.variant()}').")
+    check(indirect_samples == 0, PLUGIN_NAME, "indirect_samples",
+          f"is {indirect_samples}, and the indirect light is not differentiated: "
+          "set it to 0 for gradients")
+
+
+def tile_demand(demand: Demand, tile: int) -> Demand:
+    """What a render's ``demand`` becomes where a tile of ``tile`` camera
+    samples is traced again with AD beside it."""
+    return dataclasses.replace(demand, launch_samples=tile,
+                               launch_sample_bytes=TILE_SAMPLE_BYTES)
+
+
+def primal_seed(seed: int, last_seed: int) -> int:
+    """The seed whose image is differentiated. ``mi.render`` passes its
+    differential phase a seed of its own, a hash of the primal one
+    (``sample_tea_32(seed, 1)``): that hash of the last render's seed
+    (``last_seed``) is taken back to it, so that the derivative is that of
+    the image ``mi.render`` returned."""
+    return last_seed if seed == _differential_seed(last_seed) else seed
+
+
+def _differential_seed(seed: int) -> int:
+    """The seed ``mi.render`` derives for the differential phase from ``seed``."""
+    return int(mi.sample_tea_32(mi.UInt32(seed), mi.UInt32(1))[0][0])
 
 
 def differentiated(params) -> list:
@@ -296,31 +323,28 @@ class Replay:
             del radiance
 
 
-def recording_shader(base, tangent=None):
-    """A subclass of the camera shader ``base`` (``whitted.CameraShader``)
-    that hands each launch's radiance out as an AD leaf. Given a
-    ``tangent``, the leaf's gradient is ``tangent(positions, keys, lens)``
-    and nothing else is kept: the band's pixels, made of the leaves, keep
-    them in their AD graph until the band's tangent is taken. Without one
-    (reverse mode), each launch (:class:`_Launch`) is kept in ``launches``
-    until the caller has the band's adjoints and empties it."""
+class RecordingShader(CameraShader):
+    """A camera shader that hands each launch's radiance out as an AD leaf.
+    Given a ``tangent``, the leaf's gradient is ``tangent(positions, keys,
+    lens)`` and nothing else is kept: the band's pixels, made of the
+    leaves, keep them in their AD graph until the band's tangent is taken.
+    Without one (reverse mode), each launch (:class:`_Launch`) is kept in
+    ``launches`` until the caller has the band's adjoints and empties it."""
 
-    class RecordingShader(base):
-        def __init__(self, tracer, sensor, progress=None, indirect_samples=0):
-            super().__init__(tracer, sensor, progress, indirect_samples)
-            self.launches = []
+    def __init__(self, tracer, sensor, progress=None, indirect_samples=0, tangent=None):
+        super().__init__(tracer, sensor, progress, indirect_samples)
+        self.tangent = tangent
+        self.launches = []
 
-        def __call__(self, positions, keys, lens=None, share=1):
-            radiance, alpha = super().__call__(positions, keys, lens, share)
-            leaf = mi.Color3f(radiance)
-            dr.enable_grad(leaf)
-            if tangent is not None:
-                dr.set_grad(leaf, tangent(positions, keys, lens))
-            else:
-                self.launches.append(_Launch(positions, keys, lens, leaf))
-            return leaf, alpha
-
-    return RecordingShader
+    def __call__(self, positions, keys, lens=None, share=1):
+        radiance, alpha = super().__call__(positions, keys, lens, share)
+        leaf = mi.Color3f(radiance)
+        dr.enable_grad(leaf)
+        if self.tangent is not None:
+            dr.set_grad(leaf, self.tangent(positions, keys, lens))
+        else:
+            self.launches.append(_Launch(positions, keys, lens, leaf))
+        return leaf, alpha
 
 
 def sample_adjoints(launches: list, radiance: mi.Color3f, adjoint: mi.Color3f):

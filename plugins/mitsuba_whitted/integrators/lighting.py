@@ -57,7 +57,7 @@ class ShadowTester(ReadsScene):
     def __init__(self, scene_ref: SceneRef, needs: SceneNeeds, shadows: str, intersect):
         self.scene_ref = scene_ref
         self.needs = needs
-        self.tinted = shadows in ("tinted", "seed")
+        self.tinted = shadows == "tinted"
         self.blocking = shadows == "blocking"
         self.intersect = intersect
         self.opaque = not needs.analytic_shapes and (self.blocking or not needs.transmissive)
@@ -146,9 +146,8 @@ class ShadowTester(ReadsScene):
 
         "physical": only surfaces that transmit without bending the ray
         (index-matched dielectrics, thin dielectrics, null and masks);
-        "tinted" (or its first name, "seed"): refracting surfaces too, for
-        the lightened, tinted shadows behind glass of the COSC363 ray
-        tracer.
+        "tinted": refracting surfaces too, for the lightened, tinted
+        shadows behind glass of the COSC363 ray tracer.
         """
         passed = mi.Color3f(0)
         for component in self.needs.transmission_components:

@@ -26,8 +26,7 @@ from dataclasses import dataclass
 
 from ..errors import ParameterError
 from ..system import available_memory, available_text
-
-PLUGIN_NAME = "whitted"
+from .settings import PLUGIN_NAME
 
 #: Most camera samples a band may keep outside the kernels at once.
 BAND_SAMPLES = 1 << 25

@@ -12,8 +12,7 @@ import drjit as dr
 import mitsuba as mi
 
 from ..errors import ParameterError
-
-PLUGIN_NAME = "whitted"
+from .settings import PLUGIN_NAME
 
 #: Parameters (by the first part of their traversed name) that are amounts
 #: of light: spectra and the textures that scale them.
