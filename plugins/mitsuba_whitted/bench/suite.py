@@ -10,7 +10,7 @@ import mitsuba as mi
 from ..overrides import load_with
 from ..system import machine
 from .bound import CASTS, launch_split, ray_casting_bound
-from . import gradients
+from . import gradient_figures
 from .equal_error import equal_error_speedup
 from .processes import child_peak_memory, fresh_process_render, peak_rss_mib
 from ..jit import release_scenes
@@ -156,7 +156,7 @@ def run(settings: BenchSettings, report=print) -> dict:
     report("equal error against path ...")
     results["equal_error"] = equal_error_speedup(*settings.equal_error,
                                                  settings.equal_error_rounds)
-    results["gradient"] = gradients.measure(
+    results["gradient"] = gradient_figures.measure_gradients(
         scene_path, settings.defines, settings.scene_settings, settings.repeats,
         settings.memory_resolutions[0], settings.gradient, report,
         indirect=results["indirect_samples"] > 0)

@@ -20,7 +20,7 @@ def render(scene) -> None:
 
 
 def gradient(scene) -> None:
-    from mitsuba_whitted.bench.gradients import GradientStep
+    from mitsuba_whitted.bench.gradient_figures import GradientStep
     GradientStep(scene)()
 
 
