@@ -29,15 +29,16 @@ class _Task:
     total: int
     done: int
     started: float
-    written: float
 
 
 class Progress:
     """Called as ``progress(done, total, what)``; a new task starts when
     the total changes or the count goes back. On a terminal, a bar; on any
-    other stream, a line at most every ``line_interval`` seconds (the first
-    one ``line_interval`` seconds into a task, so that short work says
-    nothing; by default :data:`LINE_INTERVAL_VARIABLE` or 10 s)."""
+    other stream, a line at most every ``line_interval`` seconds, the first
+    one ``line_interval`` seconds after this object is made, so that short
+    work says nothing (by default :data:`LINE_INTERVAL_VARIABLE` or 10 s).
+    The interval runs across tasks: work made of many short tasks is not
+    silent either."""
 
     def __init__(self, stream=None, min_interval: float = 0.1,
                  line_interval: float | None = None):
@@ -46,6 +47,7 @@ class Progress:
         self.line_interval = default_line_interval() if line_interval is None else line_interval
         self.bar = None
         self.task = None
+        self.written = time.monotonic()
 
     def __call__(self, done: int, total: int, what: str) -> None:
         if self.stream.isatty():
@@ -65,10 +67,10 @@ class Progress:
     def _write_line(self, done: int, total: int, what: str) -> None:
         now = time.monotonic()
         if self.task is None or _starts_anew(done, total, self.task.done, self.task.total):
-            self.task = _Task(total, done, started=now, written=now)
+            self.task = _Task(total, done, started=now)
         self.task.done = done
-        if now - self.task.written >= self.line_interval:
-            self.task.written = now
+        if now - self.written >= self.line_interval:
+            self.written = now
             line = tqdm.format_meter(done, total, now - self.task.started, prefix=what,
                                      bar_format=LINE_FORMAT)
             print(line, file=self.stream, flush=True)
