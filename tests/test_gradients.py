@@ -17,8 +17,8 @@ import pytest
 
 from conftest import SRGB_TO_XYZ, read_only
 from mitsuba_whitted.compare import equivalence_test
-from mitsuba_whitted.compare.gradients import (gradient_values, prb_gradient_batches,
-                                               whitted_gradient)
+from mitsuba_whitted.compare.gradient_equivalence import (gradient_values,
+                                                          prb_gradient_batches, whitted_gradient)
 from mitsuba_whitted.errors import ParameterError, VariantError
 from mitsuba_whitted.integrators import gradients
 from mitsuba_whitted.jit import device_array

@@ -63,6 +63,24 @@ def test_probe_survives_an_aborting_library():
     assert subprocess.run([sys.executable, "-c", code], env=env, timeout=300).returncode == 0
 
 
+def test_probe_accepts_the_library_in_use(monkeypatch, tmp_path):
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    assert llvm.probe(llvm.loaded_library()) is True
+
+
+def test_probe_program_imports_dr_jit_and_nothing_of_the_package():
+    """The probe's child starts with no libLLVM loaded: importing the
+    package (or Mitsuba) would choose and load one first."""
+    from mitsuba_whitted import programs
+    python, *program = programs.command("llvm_probe", llvm.loaded_library())
+    result = subprocess.run([python, "-X", "importtime", *program], capture_output=True,
+                            text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    imported = {line.split("|")[-1].strip() for line in result.stderr.splitlines()}
+    assert "drjit" in imported
+    assert not {name for name in imported if name.startswith(("mitsuba", "mitsuba_whitted"))}
+
+
 # Records DRJIT_LIBLLVM_PATH at the moment Dr.Jit is first imported.
 IMPORT_WATCH = """
 import os, sys

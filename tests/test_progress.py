@@ -3,9 +3,13 @@
 import io
 import os
 import pty
+import re
 import select
+import time
 
-from mitsuba_whitted.progress import Progress
+from conftest import cli
+from mitsuba_whitted.progress import LINE_INTERVAL_VARIABLE, Progress
+from validation.scenes import REPORT_SCENE
 
 
 def shown_on(terminal: int, awaited: str, seconds: float = 10.0) -> str:
@@ -52,9 +56,28 @@ def test_progress_bar_shows_the_count_and_the_time_left():
     assert "<" in text  # elapsed<remaining
 
 
-def test_progress_bar_is_silent_off_a_terminal():
+def test_off_a_terminal_short_work_says_nothing():
     stream = io.StringIO()
     progress = Progress(stream)
     progress(1, 2, "passes")
     progress.finish()
     assert stream.getvalue() == ""
+
+
+def test_off_a_terminal_a_plain_line_at_intervals():
+    stream = io.StringIO()
+    progress = Progress(stream, line_interval=0.5)
+    progress(1, 4, "reference passes")  # at once: no line yet
+    time.sleep(0.6)
+    progress(2, 4, "reference passes")  # an interval later: a line
+    progress(3, 4, "reference passes")  # at once: none
+    assert stream.getvalue() == "reference passes: 2/4 (50%), 00:00 elapsed, 00:00 left\n"
+
+
+def test_a_render_into_a_pipe_says_where_it_is(tmp_path):
+    env = dict(os.environ, **{LINE_INTERVAL_VARIABLE: "0.001"})
+    result = cli("render", str(REPORT_SCENE), "-o", str(tmp_path / "small.exr"), "-D", "res=32",
+                 env=env, check=True)
+    lines = result.stderr.splitlines()
+    assert lines and all(re.fullmatch(r"camera samples: \d+/\d+ \(\d+%\), .* elapsed, .* left",
+                                      line) for line in lines), result.stderr

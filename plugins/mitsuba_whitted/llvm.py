@@ -22,6 +22,7 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
+from . import programs
 from .files import write_text
 
 #: Versions known to abort Dr.Jit 1.5 on x86-64.
@@ -85,17 +86,10 @@ def _cache_file() -> Path:
     return Path(root) / "mitsuba-whitted" / "llvm-probe.json"
 
 
-_PROBE = (
-    "import os, sys; os.environ['DRJIT_LIBLLVM_PATH'] = sys.argv[1]\n"
-    "import drjit as dr\n"
-    "x = dr.minimum(dr.llvm.Float([1, 2, 3]), dr.llvm.Float(2))\n"
-    "assert x.numpy().tolist() == [1, 2, 2]\n"
-)
-
-
 def probe(path: str) -> bool:
     """Whether Dr.Jit compiles a kernel with ``path``, tried in a child
-    process so that an abort cannot take this one down. Cached per file."""
+    process (:mod:`.programs.llvm_probe`) so that an abort cannot take this
+    one down. Cached per file."""
     stat = os.stat(path)
     key = f"{os.path.realpath(path)}:{stat.st_size}:{int(stat.st_mtime)}"
     cache = _cache_file()
@@ -104,7 +98,7 @@ def probe(path: str) -> bool:
     except (OSError, ValueError):
         verdicts = {}
     if key not in verdicts:
-        result = subprocess.run([sys.executable, "-c", _PROBE, path],
+        result = subprocess.run(programs.command("llvm_probe", path),
                                 capture_output=True, timeout=120)
         verdicts[key] = result.returncode == 0
         try:

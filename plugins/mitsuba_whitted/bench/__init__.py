@@ -14,7 +14,7 @@ kernel cache as it is and once with an empty one.
 - :mod:`.processes`: fresh processes and their peak memory;
 - :mod:`.equal_error`: the equal-error speed-up over ``path``, timed in
   interleaved rounds as ``compare`` times it;
-- :mod:`.gradients`: the time and memory of a gradient, and its error
+- :mod:`.gradient_figures`: the time and memory of a gradient, and its error
   against ``prb``'s at equal time;
 - :mod:`.suite`: the settings and the run of all of them;
 - :mod:`.tables`: the figures as a table.

@@ -56,21 +56,24 @@ HEADLINE = "whitted contrast 16x16, min_throughput 0.0001"
 
 
 def equal_error_speedup(resolution: int, reference_spp: int, largest_spp: int,
-                        rounds: int) -> dict:
+                        rounds: int, progress=None) -> dict:
     """Time ``path`` needs to match Whitted's error on ``fresnel_scene``,
     over Whitted's time (both warm, timed in ``rounds`` interleaved rounds,
     against one converged reference), in relMSE and FLIP with their 95%
     intervals, for Whitted's anti-aliasing settings
     (:func:`equal_error_settings`): its only error is aliasing, which they
-    shrink, while path's is noise. The headline is :data:`HEADLINE`."""
+    shrink, while path's is noise. The headline is :data:`HEADLINE`.
+    ``progress(done, total, what)`` hears of the reference's passes and the
+    sweep's renders."""
     description = fresnel_scene(resolution)
     scene = mi.load_dict(description)
     reference = render_reference(scene, reference_spp,
-                                 settings=path_settings(EQUAL_ERROR_DEPTH))
+                                 settings=path_settings(EQUAL_ERROR_DEPTH), progress=progress)
     sensors = {sampler: mi.load_dict({**description["sensor"], "sampler": {"type": sampler}})
                for sampler in PATH_SAMPLERS}
     sweep = run_sweep(scene, reference, whitted_settings(equal_error_settings())
-                      + path_ladder(largest_spp, depth=EQUAL_ERROR_DEPTH), sensors, rounds)
+                      + path_ladder(largest_spp, depth=EQUAL_ERROR_DEPTH), sensors, rounds,
+                      progress)
     analysis = analyse(sweep)
     rows = [{"whitted": p.label, "whitted_rel_mse": p.rel_mse, "whitted_flip": p.flip,
              "whitted_seconds": analysis.seconds[p.label].to_json(),

@@ -14,6 +14,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from .. import programs
 from ..system import proc_field
 
 #: Longest a child render may take before the bench gives up on it.
@@ -55,29 +56,14 @@ def fresh_process_render(scene_path: Path, defines: dict, empty_cache: bool) -> 
     return {"process_seconds": wall, "render_seconds": render}
 
 
-#: What a child process of :func:`child_peak_memory` does with the scene.
-CHILD_WORK = {
-    "render": "mi.render(scene)",
-    "gradient": ("from mitsuba_whitted.bench.gradients import GradientStep\n"
-                 "GradientStep(scene)()"),
-}
-
-
 def child_peak_memory(scene_path: Path, defines: dict, settings: dict,
                       work: str = "render") -> float:
     """Peak RSS (MiB) of a child process that loads the scene (with
     ``settings``, see :func:`~mitsuba_whitted.overrides.load_with`) and
-    renders it, or takes one gradient of it (``work``)."""
-    code = ("import sys, json, mitsuba_whitted, mitsuba as mi, drjit as dr\n"
-            "mitsuba_whitted.set_variant('llvm_ad_rgb')\n"
-            "from mitsuba_whitted.bench.processes import peak_rss_mib\n"
-            "from mitsuba_whitted.overrides import load_with\n"
-            "scene = load_with(sys.argv[1], json.loads(sys.argv[2]), json.loads(sys.argv[3]))\n"
-            f"{CHILD_WORK[work]}\n"
-            "dr.sync_thread()\n"
-            "print('peak_rss_mib', peak_rss_mib())\n")
-    result = _run_child([sys.executable, "-c", code, str(scene_path), json.dumps(defines),
-                         json.dumps(settings)])
+    renders it, or takes one gradient of it (``work``); the child runs
+    :mod:`~mitsuba_whitted.programs.peak_memory`."""
+    result = _run_child(programs.command("peak_memory", str(scene_path), json.dumps(defines),
+                                         json.dumps(settings), work))
     # Mitsuba's log shares stdout (with colour codes): find our own line.
     return float(re.findall(r"peak_rss_mib ([0-9.]+)", result.stdout)[-1])
 

@@ -10,10 +10,11 @@ import mitsuba as mi
 from ..overrides import load_with
 from ..system import machine
 from .bound import CASTS, launch_split, ray_casting_bound
-from . import gradients
+from . import gradient_figures
 from .equal_error import equal_error_speedup
 from .processes import child_peak_memory, fresh_process_render, peak_rss_mib
 from ..jit import release_scenes
+from ..progress import Progress
 from .timing import scaling_table, time_render
 
 DEFAULT_SCENE = Path(__file__).resolve().parents[3] / "scenes" / "cosc363.xml"
@@ -154,9 +155,11 @@ def run(settings: BenchSettings, report=print) -> dict:
                            "seconds": r.seconds.to_json(),
                            "rays": r.rays, "rays_per_second": r.rays_per_second} for r in rows]
     report("equal error against path ...")
+    progress = Progress()
     results["equal_error"] = equal_error_speedup(*settings.equal_error,
-                                                 settings.equal_error_rounds)
-    results["gradient"] = gradients.measure(
+                                                 settings.equal_error_rounds, progress)
+    progress.finish()
+    results["gradient"] = gradient_figures.measure_gradients(
         scene_path, settings.defines, settings.scene_settings, settings.repeats,
         settings.memory_resolutions[0], settings.gradient, report,
         indirect=results["indirect_samples"] > 0)

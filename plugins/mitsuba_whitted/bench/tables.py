@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from ..compare.intervals import Estimate, estimate_text, verdict_text
 from ..compare.metrics import METRIC_NAMES
-from . import gradients
+from . import gradient_figures
 from .bound import CASTS
 
 
@@ -103,4 +103,4 @@ def format_table(results: dict) -> str:
     lines.append(f"  headline: {eq['whitted']}, "
                  + ", ".join(f"{METRIC_NAMES[m]} {verdict_text(Estimate.from_json(s))}"
                              for m, s in eq["speedup"].items()))
-    return "\n".join(lines + gradients.format_lines(results["gradient"]))
+    return "\n".join(lines + gradient_figures.format_lines(results["gradient"]))

@@ -28,7 +28,7 @@ import numpy as np
 
 from .cache import ReferenceCache, cache_key, package_digest
 from .metrics import error_maps
-from .reference import PATH_DEPTH, Reference, path_settings, rgb
+from .reference import PATH_DEPTH, Reference, path_settings, rgb_pixels
 
 #: The settings that choose the anti-aliasing, which a converged render
 #: replaces.
@@ -98,7 +98,8 @@ def converged_renders(scene: mi.Scene, scene_digest: str, whitted: dict,
 def _cached_render(scene, scene_digest: str, settings: dict, cache: ReferenceCache) -> Converged:
     def compute():
         started = time.perf_counter()
-        image = rgb(mi.render(scene, integrator=mi.load_dict({"type": "whitted", **settings})))
+        integrator = mi.load_dict({"type": "whitted", **settings})
+        image = rgb_pixels(mi.render(scene, integrator=integrator))
         dr.sync_thread()
         return {"image": image, "seconds": np.array(time.perf_counter() - started)}
 

@@ -12,9 +12,10 @@ import functools
 import math
 import pickle
 import subprocess
-import sys
 
 import numpy as np
+
+from .. import programs
 
 #: Each metric of :func:`error_maps` as the reports name it.
 METRIC_NAMES = {"relmse": "relMSE", "flip": "FLIP"}
@@ -98,26 +99,13 @@ def flip_error(image: np.ndarray, reference: np.ndarray):
     return _flip_worker()(reference, image)
 
 
-#: Reads pickled pairs of images (reference, test) on stdin and writes
-#: the mean HDR-FLIP and its map of each to stdout, until stdin closes.
-_FLIP_WORKER = """
-import pickle, sys, numpy as np, flip_evaluator
-read, write = sys.stdin.buffer, sys.stdout.buffer
-while read.peek(1):
-    reference, image = pickle.load(read)
-    error_map, mean, _ = flip_evaluator.evaluate(reference, image, "HDR", applyMagma=False)
-    pickle.dump((float(mean), np.asarray(error_map)[..., 0]), write, protocol=5)
-    write.flush()
-"""
-
-
 class _FlipWorker:
-    """A process running ``_FLIP_WORKER``, in a session of its own (a
+    """A process running :mod:`~mitsuba_whitted.programs.flip_worker`, in a session of its own (a
     Ctrl-C at the terminal is for its parent); it ends when its parent
     does, however that ends."""
 
     def __init__(self):
-        self.process = subprocess.Popen([sys.executable, "-c", _FLIP_WORKER],
+        self.process = subprocess.Popen(programs.command("flip_worker"),
                                         stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                         stderr=subprocess.PIPE, start_new_session=True)
 

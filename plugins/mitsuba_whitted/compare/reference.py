@@ -38,7 +38,7 @@ class Reference:
     cached: bool
 
 
-def rgb(image) -> np.ndarray:
+def rgb_pixels(image) -> np.ndarray:
     """The colour channels of a rendered image as float64 numpy."""
     return np.asarray(image, dtype=np.float64)[..., :3]
 
@@ -59,7 +59,7 @@ class PassSums:
         self.total = self.square = None
 
     def add(self, image) -> None:
-        image = rgb(image)
+        image = rgb_pixels(image)
         self.total = image if self.total is None else self.total + image
         self.square = image ** 2 if self.square is None else self.square + image ** 2
 

@@ -34,7 +34,7 @@ from ..overrides import load_with
 from .intervals import SEED, Draws, tile_pixels, tile_sums
 from .metrics import TILE_SIDES, error_maps, rmse
 from .converged import has_ambient
-from .reference import PATH_DEPTH, Reference, path_settings, rgb
+from .reference import PATH_DEPTH, Reference, path_settings, rgb_pixels
 
 #: Path's samplers, each rendering a ladder of its own.
 PATH_SAMPLERS = ("independent", "multijitter")
@@ -244,7 +244,7 @@ class Sweep:
         return curves
 
 
-def measure(point: SweepPoint, reference: np.ndarray) -> SweepPoint:
+def measure_errors(point: SweepPoint, reference: np.ndarray) -> SweepPoint:
     """The point's errors against ``reference``, and their tile sums."""
     maps = error_maps(point.image, reference)
     point.rel_mse = float(np.mean(maps["relmse"]))
@@ -268,7 +268,7 @@ def run_sweep(scene: mi.Scene, reference: Reference, settings: list[Setting], se
     first = []
     for setting, render in zip(settings, renders):
         image, (seconds,) = timed(render, 1)
-        first.append((rgb(image), seconds))
+        first.append((rgb_pixels(image), seconds))
         _report(progress, len(first), steps, setting.label)
     # Once every sampler has rendered: a path render with a sensor of its
     # own makes Whitted's frozen kernels record again at their next call.
@@ -277,7 +277,8 @@ def run_sweep(scene: mi.Scene, reference: Reference, settings: list[Setting], se
     times = timed_rounds(renders, [s.kind for s in settings], rounds,
                          lambda done: _report(progress, len(settings) + done, steps,
                                               f"round {done} of {rounds}"))
-    points = [measure(SweepPoint(setting, seconds, times[:, index], image), reference.image)
+    points = [measure_errors(SweepPoint(setting, seconds, times[:, index], image),
+                             reference.image)
               for index, (setting, (image, seconds)) in enumerate(zip(settings, first))]
     return Sweep(points, reference.image.shape[:2], Draws.make(rounds))
 

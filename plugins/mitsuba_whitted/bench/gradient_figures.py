@@ -134,7 +134,7 @@ def relative_error(estimate: np.ndarray, exact: np.ndarray) -> float:
 def equal_error_gradient(resolution: int, largest_spp: int, seeds: int, repeats: int) -> dict:
     """Time and error of whitted's gradient and of prb's at 1, 4, ...
     ``largest_spp`` paths per pixel (see the module's docstring)."""
-    from ..compare.gradients import prb_gradient_batches, whitted_gradient
+    from ..compare.gradient_equivalence import prb_gradient_batches, whitted_gradient
 
     scene = mi.load_dict(equivalence_scene(resolution))
     params = mi.traverse(scene)
@@ -198,7 +198,7 @@ INDIRECT_NOT_DIFFERENTIATED = ("the scene's whitted gathers indirect light "
                                "(indirect_samples > 0), which is not differentiated")
 
 
-def measure(scene_path: Path, defines: dict, scene_settings: dict, repeats: int,
+def measure_gradients(scene_path: Path, defines: dict, scene_settings: dict, repeats: int,
             memory_resolution: int, equal_error: tuple, report=print,
             indirect: bool = False) -> dict:
     """Every gradient figure of the bench; of the scene's own gradient none
