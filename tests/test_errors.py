@@ -43,9 +43,46 @@ def test_the_package_has_its_own_exception_classes():
     """The oracle finds the classes it is meant to (it would pass vacuously
     on an empty list)."""
     names = {name for _, name in CLASSES}
-    assert {"ParameterError", "WriteError", "ImageWriteError", "ClusterError",
+    assert {"Error", "ParameterError", "WriteError", "ImageFormatError", "ClusterError",
             "UsageError"} <= names
-    assert "EqualError" not in names  # a record of figures, not an exception
+
+
+@pytest.mark.parametrize("module, name", CLASSES, ids=[name for _, name in CLASSES])
+def test_every_error_of_the_package_derives_from_one_base(module, name):
+    cls = getattr(__import__(module, fromlist=[name]), name)
+    assert issubclass(cls, errors.Error)
+    assert errors.Error.kinds.get(name, errors.Error) is cls
+
+
+def test_the_base_puts_the_one_prefix_before_the_sentence():
+    assert str(errors.UsageError("the file 'a' is missing.")) == \
+        "mitsuba-whitted: the file 'a' is missing."
+    assert str(errors.VariantError("needs a JIT variant.", "whitted")) == \
+        "whitted: needs a JIT variant."
+    assert str(errors.ParameterError("phong", "exponent", "must be >= 0 (got -1)")) == \
+        "phong: parameter 'exponent' must be >= 0 (got -1)"
+
+
+def test_the_sources_spell_the_prefix_one_way():
+    """The package's name before a message is the command's, with a hyphen."""
+    spelled = [path.name for path in PACKAGE.rglob("*.py") if "mitsuba_whitted: " in path.read_text()]
+    assert spelled == []
+
+
+@pytest.mark.parametrize("error", [
+    errors.UsageError("the file 'a' is missing."),
+    errors.ParameterError("tartan", "frequency", "must be finite (got nan)"),
+    errors.VariantError("needs a JIT variant.", "whitted"),
+], ids=lambda error: type(error).__name__)
+def test_an_error_sent_between_processes_arrives_as_it_was_sent(error):
+    """Ray pickles a worker's exception: it must not be made anew from its
+    text, which would put the prefix in twice."""
+    import pickle
+
+    arrived = pickle.loads(pickle.dumps(error))
+    assert type(arrived) is type(error)
+    assert str(arrived) == str(error)
+    assert vars(arrived) == vars(error)
 
 
 @pytest.mark.parametrize("module, name", CLASSES, ids=[name for _, name in CLASSES])

@@ -6,6 +6,7 @@ import shutil
 import mitsuba as mi
 import pytest
 
+from mitsuba_whitted.errors import UsageError
 from mitsuba_whitted.overrides import load_with
 from validation.scenes import REPORT_SCENE, ROOT
 
@@ -74,14 +75,14 @@ def test_no_settings_load_the_scene_as_it_is(literal_scene):
 def test_a_scene_without_a_film_says_so(tmp_path):
     path = tmp_path / "bare.xml"
     path.write_text('<scene version="3.0.0"><integrator type="whitted"/></scene>')
-    with pytest.raises(RuntimeError, match=r"bare.xml' has no <sensor><film>"):
+    with pytest.raises(UsageError, match=r"bare.xml. has no <sensor><film>"):
         load_with(path, {}, {"res": 32})
 
 
 def test_a_width_parameter_without_a_value_says_so(tmp_path):
     path = tmp_path / "open.xml"
     path.write_text(LITERAL_SCENE.replace('value="80"', 'value="$w"'))
-    with pytest.raises(RuntimeError, match=r"refers to \$w, which has no value"):
+    with pytest.raises(UsageError, match=r"refers to \$w, which has no value"):
         load_with(path, {}, {"res": 32})
 
 

@@ -45,7 +45,8 @@ def test_plugins_follow_variant_changes():
 
 
 def test_unknown_variant_is_one_sentence():
-    with pytest.raises(ValueError, match="variant 'llvm_ad_rgbx' is not available"):
+    with pytest.raises(mitsuba_whitted.VariantError,
+                       match="^mitsuba-whitted: variant 'llvm_ad_rgbx' is not available"):
         mitsuba_whitted.set_variant("llvm_ad_rgbx")
 
 
@@ -54,7 +55,25 @@ def test_a_variant_whose_backend_cannot_start_is_one_sentence():
     was active stays usable."""
     if "cuda_ad_rgb" not in mi.variants() or dr.has_backend(dr.JitBackend.CUDA):
         pytest.skip("this machine has no CUDA variant, or can run it")
-    with pytest.raises(RuntimeError, match="'cuda_ad_rgb' cannot be used on this machine.*NVIDIA"):
+    with pytest.raises(mitsuba_whitted.VariantError,
+                       match="'cuda_ad_rgb' cannot be used on this machine.*NVIDIA"):
         mitsuba_whitted.set_variant("cuda_ad_rgb")
     assert mi.variant() == "llvm_ad_rgb"
     assert isinstance(mi.load_dict({"type": "whitted"}), mi.SamplingIntegrator)
+
+
+def test_whitted_is_told_apart_from_other_integrators_in_every_variant():
+    """The plugin's class is made anew on each variant change: the check
+    does not hold on to one of them."""
+    from mitsuba_whitted.integrators.settings import is_whitted
+
+    before = mi.load_dict({"type": "whitted"})
+    try:
+        mitsuba_whitted.set_variant("llvm_ad_mono")
+        assert not is_whitted(mi.load_dict({"type": "path"}))
+    finally:
+        mitsuba_whitted.set_variant("llvm_ad_rgb")
+    after = mi.load_dict({"type": "whitted"})
+    assert type(after) is not type(before)
+    assert is_whitted(before) and is_whitted(after)
+    assert not is_whitted(mi.load_dict({"type": "path"})) and not is_whitted(None)

@@ -18,6 +18,7 @@ import numpy as np
 
 from mitsuba_whitted.camera import camera_rays, pixel_centres
 from mitsuba_whitted.compare import path_batches
+from mitsuba_whitted.integrators.settings import is_whitted
 from validation import scenes
 from validation.stability import cylinder
 from validation.stability.common import SEED, float32_rays, unit_rows
@@ -291,7 +292,7 @@ def pass_through_shares(integrators: dict, batches: int = 8, spp: int = 16) -> d
     shaded, lit = (mi.load_dict(pass_through_scene(balls, size=8)) for balls in (True, False))
     shares = {}
     for name, integrator in integrators.items():
-        if hasattr(integrator, "trace_rays"):     # Whitted: one exact value
+        if is_whitted(integrator):     # one exact value
             values = [np.array(integrator.trace_rays(s, ray)[0], dtype=np.float64).T[None]
                       for s in (shaded, lit)]
         else:

@@ -32,11 +32,13 @@ if startup.COMMAND:
 
 import importlib  # noqa: E402  (after Ctrl-C is handled)
 import sys  # noqa: E402
+from importlib import metadata  # noqa: E402
 
 from . import llvm  # noqa: E402
-from .errors import ParameterError  # noqa: E402,F401  (raised by every plugin's checks)
+from .errors import Error, ParameterError, VariantError  # noqa: E402,F401  (raised by the checks)
 
-__version__ = "0.1.0"
+#: The installed distribution's version (pyproject.toml says it).
+__version__ = metadata.version("mitsuba-whitted")
 
 #: Plugin modules, each registering one plugin at its bottom. Their classes
 #: derive from variant-specific Mitsuba types, so they are (re)imported after
@@ -93,8 +95,8 @@ def set_variant(variant: str = DEFAULT_VARIANT) -> None:
     if variant.startswith("llvm"):
         llvm.require()
     if variant not in mi.variants():
-        raise ValueError(
-            f"mitsuba_whitted: variant '{variant}' is not available; "
+        raise VariantError(
+            f"variant '{variant}' is not available; "
             f"choose one of {', '.join(mi.variants())}.")
     try:
         mi.set_variant(variant)
@@ -102,8 +104,8 @@ def set_variant(variant: str = DEFAULT_VARIANT) -> None:
         # Dr.Jit leaves the variant that was active before in place.
         needs = " (it needs an NVIDIA GPU and its driver)" if variant.startswith("cuda") else ""
         detail = str(error).splitlines()[0].split(". ")[0]
-        raise RuntimeError(
-            f"mitsuba_whitted: variant '{variant}' cannot be used on this machine: Dr.Jit's "
+        raise VariantError(
+            f"variant '{variant}' cannot be used on this machine: Dr.Jit's "
             f"backend for it did not start{needs}: {detail}; use '{DEFAULT_VARIANT}'.") from None
 
 

@@ -75,7 +75,8 @@ def _check_scene(scene) -> None:
                    None)
     if variant is not None:
         raise VariantError(
-            f"mi.render: the scene was loaded in variant '{variant}', and the active variant "
-            f"is '{mi.variant()}'; load it again, or call mi.set_variant('{variant}') first.")
+            f"the scene was loaded in variant '{variant}', and the active variant is "
+            f"'{mi.variant()}'; load it again, or call mi.set_variant('{variant}') first.",
+            "mi.render")
     raise ParameterError("mi.render", "scene", f"must be a mi.Scene of variant "
                          f"'{mi.variant()}' (got a {type(scene).__name__})")

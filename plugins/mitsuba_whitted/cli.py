@@ -18,6 +18,7 @@ import mitsuba as mi
 from . import files
 from .command import CommandParser, add_cluster_options, count, run_command
 from .errors import UsageError
+from .integrators.settings import is_whitted
 from .interrupt import last_write
 from .progress import Progress
 from .scene_files import check_not_read
@@ -28,7 +29,7 @@ def _parse_defines(pairs: list[str]) -> dict:
     for pair in pairs:
         name, sep, value = pair.partition("=")
         if not sep or not name:
-            raise UsageError(f"mitsuba-whitted: -D expects name=value (got '{pair}').")
+            raise UsageError(f"-D expects name=value (got '{pair}').")
         defines[name] = value
     return defines
 
@@ -54,10 +55,10 @@ def command_render(args) -> int:
     loaded = time.perf_counter()
     integrator = scene.integrator()
     if not scene.sensors():
-        raise UsageError(f"mitsuba-whitted: scene '{args.scene}' has no sensor to render "
+        raise UsageError(f"scene '{args.scene}' has no sensor to render "
                          "from; add a <sensor>.")
     progress = Progress()
-    if hasattr(integrator, "render_rows"):
+    if is_whitted(integrator):
         integrator.progress = progress
         with last_write():
             _render_whitted_to_file(scene, integrator, args.output)

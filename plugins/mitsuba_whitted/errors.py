@@ -9,13 +9,47 @@ from contextlib import contextmanager
 from .system import address_space_limit, describe_limit
 
 
-class ParameterError(ValueError):
+#: The name the package's own messages begin with (a plugin's begin with
+#: the plugin's name).
+PACKAGE_NAME = "mitsuba-whitted"
+
+
+class Error(Exception):
+    """The base of the errors this package raises for a person to read: one
+    sentence, after the name of what refuses (``source``: the package, or
+    one of its plugins), which this puts in front of the ``message``."""
+
+    #: The package's error classes by name: a plugin's error reaches
+    #: Mitsuba's loader only as the text of a traceback.
+    kinds: dict[str, type] = {}
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        Error.kinds[cls.__name__] = cls
+
+    def __init__(self, message: str, source: str = PACKAGE_NAME):
+        self.source = source
+        super().__init__(f"{source}: {message}")
+
+    def __reduce__(self):
+        # Unpickled (from a Ray worker) as it was, not made from its text again.
+        return _remade, (type(self), self.args, self.__dict__)
+
+
+def _remade(kind: type, args: tuple, state: dict) -> Error:
+    error = kind.__new__(kind, *args)
+    error.args = args
+    error.__dict__.update(state)
+    return error
+
+
+class ParameterError(Error, ValueError):
     """A scene parameter of one of this package's plugins is invalid."""
 
     def __init__(self, plugin: str, parameter: str, problem: str):
         self.plugin = plugin
         self.parameter = parameter
-        super().__init__(f"{plugin}: parameter '{parameter}' {problem}")
+        super().__init__(f"parameter '{parameter}' {problem}", source=plugin)
 
 
 def check(condition: bool, plugin: str, parameter: str, problem: str) -> None:
@@ -31,12 +65,12 @@ def check_choice(value: str, choices, plugin: str, parameter: str) -> str:
     return value
 
 
-class VariantError(RuntimeError):
+class VariantError(Error, RuntimeError):
     """The active Mitsuba variant cannot run this plugin."""
 
 
-class UsageError(Exception):
-    """Bad input from the command line, reported as one sentence."""
+class UsageError(Error):
+    """Bad input from the command line, or a scene it cannot use."""
 
 
 def caused_by(error: BaseException, kind: type) -> bool:
@@ -47,12 +81,11 @@ def caused_by(error: BaseException, kind: type) -> bool:
 
 
 def own_error(error: BaseException) -> BaseException | None:
-    """The ``KeyboardInterrupt``, or the exception of this package, that
-    ``error`` is or wraps (as Dr.Jit's custom operations wrap what they
-    raise into a ``RuntimeError``); ``None`` if there is none."""
-    package = __name__.partition(".")[0]
-    return next((link for link in _chain(error) if isinstance(link, KeyboardInterrupt)
-                 or type(link).__module__.partition(".")[0] == package), None)
+    """The ``KeyboardInterrupt``, or the :class:`Error`, that ``error`` is
+    or wraps (as Dr.Jit's custom operations wrap what they raise into a
+    ``RuntimeError``); ``None`` if there is none."""
+    return next((link for link in _chain(error)
+                 if isinstance(link, (KeyboardInterrupt, Error))), None)
 
 
 @contextmanager
@@ -86,9 +119,6 @@ _SOURCE_LOCATION = re.compile(r"\[[\w.]+\.(?:cpp|h|inl):\d+\] ")
 _DRJIT_CALLS = re.compile(r"^(?:(?:drjit\.[\w.]+|jit_\w+)\([^()]*\): )+")
 #: Python's exception classes whose name adds nothing to their message.
 _GENERIC_CLASSES = {"Exception", "RuntimeError", "ValueError", "OSError"}
-#: Raised by this package's plugins with a sentence that names the plugin
-#: and what is wrong: Mitsuba's heading before it adds nothing.
-_OWN_SENTENCES = {"ParameterError", "VariantError", "LLVMError", "ValueError"}
 
 
 def root_cause(error: BaseException) -> BaseException:
@@ -116,7 +146,8 @@ def one_sentence(error: BaseException) -> str:
     cause = root_cause(error)
     if isinstance(cause, RecursionError):
         return _sentence(f"Python's recursion limit was reached ({cause})")
-    text = _plain_line(str(cause), type(cause).__name__)
+    name = "" if isinstance(cause, Error) else type(cause).__name__
+    text = _plain_line(str(cause), name)
     return _sentence(text or f"{type(cause).__name__} without a message")
 
 
@@ -164,7 +195,7 @@ def _plain_line(text: str, name: str) -> str:
         heading = lines[header].split(_TRACEBACK)[0]
         inner_name, message = _last_exception(lines[header + 1:])
         inner = _plain_line(message, inner_name)
-        return inner if inner_name in _OWN_SENTENCES else heading + inner
+        return inner if _names_its_source(inner_name) else heading + inner
     line = _innermost(lines)
     if _DRJIT_CALLS.match(line):
         line = "Dr.Jit: " + _DRJIT_CALLS.sub("", line)
@@ -175,22 +206,17 @@ def _plain_line(text: str, name: str) -> str:
 
 
 def _is_plain(name: str) -> bool:
-    """Whether a message of the exception class ``name`` is read without
-    the name: Python's generic classes, and this package's own, whose
-    messages are sentences already."""
-    return name in _GENERIC_CLASSES or name in _package_exception_classes()
+    """Whether a message of the exception class ``name`` (empty for one of
+    this package's, whose messages are sentences already) is read without
+    the name: Python's generic classes too."""
+    return not name or name in _GENERIC_CLASSES or name in Error.kinds
 
 
-def _package_exception_classes() -> dict[str, type]:
-    """The loaded exception classes defined in this package, by name."""
-    package = __name__.partition(".")[0]
-    classes, pending = {}, [BaseException]
-    while pending:
-        for subclass in pending.pop().__subclasses__():
-            pending.append(subclass)
-            if subclass.__module__.partition(".")[0] == package:
-                classes[subclass.__name__] = subclass
-    return classes
+def _names_its_source(name: str) -> bool:
+    """Whether an error of the class ``name``, raised in a plugin, says
+    which plugin in its own sentence (this package's errors, and the
+    ``ValueError`` of its checks), so that Mitsuba's heading adds nothing."""
+    return name in Error.kinds or name == "ValueError"
 
 
 #: Where Mitsuba's scene loader says the plugin it could not make is:
@@ -211,7 +237,7 @@ def own_loading_error(error: BaseException) -> BaseException | None:
     if not traceback:
         return None
     name, message = _last_exception(trace.strip("\n").splitlines())
-    kind = _package_exception_classes().get(name)
+    kind = Error.kinds.get(name)
     if kind is None:
         return None
     places = _LOADER_PLACE.findall(heading)
@@ -219,8 +245,9 @@ def own_loading_error(error: BaseException) -> BaseException | None:
     parameter = _PARAMETER_MESSAGE.fullmatch(message.strip())
     if issubclass(kind, ParameterError) and parameter:
         return kind(parameter[1], parameter[2], parameter[3].rstrip(".") + where)
+    source, _, sentence = message.strip().partition(": ")
     try:
-        return kind(message.strip().rstrip(".") + where)
+        return kind(sentence.rstrip(".") + where, source)
     except TypeError:  # a class that is not made from its message alone
         return None
 
@@ -265,5 +292,5 @@ def _sentence(text: str) -> str:
     return text if text.endswith((".", "!", "?")) else text + "."
 
 
-class ClusterError(RuntimeError):
+class ClusterError(Error, RuntimeError):
     """The cluster cannot run the job, said in one sentence."""

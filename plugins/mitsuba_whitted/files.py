@@ -18,6 +18,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import BinaryIO, Callable
 
+from .errors import Error
 from .interrupt import held_off, put_in_place
 from .system import proc_field
 
@@ -27,11 +28,11 @@ from .system import proc_field
 _pending: set[Path] = set()
 
 
-class WriteError(OSError):
+class WriteError(Error, OSError):
     """A file or folder could not be written; the message says which and why."""
 
 
-class ReadError(OSError):
+class ReadError(Error, OSError):
     """A file to read is missing, or is a folder."""
 
 
@@ -39,14 +40,14 @@ def check_readable(path: str | Path, what: str = "scene file") -> Path:
     """``path`` if it is a file, else a :class:`ReadError` that says why."""
     path = Path(path)
     if path.is_dir():
-        raise ReadError(f"mitsuba-whitted: {what} '{path}' is a folder, not a file.")
+        raise ReadError(f"{what} '{path}' is a folder, not a file.")
     if not path.is_file():
-        raise ReadError(f"mitsuba-whitted: {what} '{path}' does not exist.")
+        raise ReadError(f"{what} '{path}' does not exist.")
     return path
 
 
 def cannot_write(path, why: str) -> WriteError:
-    return WriteError(f"mitsuba-whitted: cannot write '{path}': {why}.")
+    return WriteError(f"cannot write '{path}': {why}.")
 
 
 def reason(error: OSError) -> str:

@@ -30,8 +30,10 @@ ALPHA_SUFFIXES = {".png", ".exr"}
 RGB_ONLY_SUFFIXES = {".hdr"}
 
 
-class ImageWriteError(WriteError):
-    """The image could not be written."""
+class ImageFormatError(WriteError):
+    """An image cannot be written in the format asked for: its suffix
+    names no format this package writes, or its pixels are not of the
+    format's type."""
 
 
 def linear_to_srgb(values: np.ndarray) -> np.ndarray:
@@ -46,7 +48,7 @@ def to_8bit(linear: np.ndarray) -> np.ndarray:
 
 def check_image_path(path: str | Path) -> Path:
     """``path`` if an image can be written there (a known suffix, a
-    writable folder), else an :class:`ImageWriteError`; checked before a
+    writable folder), else an :class:`ImageFormatError`; checked before a
     render, so that none is thrown away."""
     return _known_format(check_writable(path))
 
@@ -54,8 +56,8 @@ def check_image_path(path: str | Path) -> Path:
 def _known_format(path: str | Path) -> Path:
     path = Path(path)
     if path.suffix.lower() not in HDR_SUFFIXES | LDR_SUFFIXES:
-        raise ImageWriteError(
-            f"mitsuba-whitted: cannot write '{path}': use one of "
+        raise ImageFormatError(
+            f"cannot write '{path}': use one of "
             f"{', '.join(sorted(HDR_SUFFIXES | LDR_SUFFIXES))}.")
     return path
 
@@ -74,7 +76,7 @@ def write_pixels(path: str | Path, pixels: np.ndarray) -> None:
     path = _known_format(path)
     wanted = np.uint8 if path.suffix.lower() in LDR_SUFFIXES else np.float32
     if pixels.dtype != wanted:
-        raise ImageWriteError(f"mitsuba-whitted: cannot write '{path}': its pixels "
+        raise ImageFormatError(f"cannot write '{path}': its pixels "
                               f"are {pixels.dtype}, and the format stores {np.dtype(wanted)}.")
     height, width, channels = pixels.shape
     with _Encoder(path, width, height, channels) as encoder:
@@ -231,7 +233,7 @@ def read_image(path: str | Path) -> np.ndarray:
     with _opened(path) as image:
         refusal = _refusal(image)
         if refusal:
-            raise ReadError(f"mitsuba-whitted: cannot read '{path}': {refusal}.")
+            raise ReadError(f"cannot read '{path}': {refusal}.")
         return image.read_image(oiio.FLOAT)
 
 

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from . import programs
+from .errors import Error
 from .files import write_text
 
 #: Versions known to abort Dr.Jit 1.5 on x86-64.
@@ -47,7 +48,7 @@ INSTALL_HINT = (
 )
 
 
-class LLVMError(RuntimeError):
+class LLVMError(Error, RuntimeError):
     """No libLLVM that Dr.Jit can use is available."""
 
 
@@ -122,7 +123,7 @@ def select(candidates: list[Candidate] | None = None) -> Candidate:
             return candidate
     seen = ", ".join(f"{c.path} (LLVM {c.version})" for c in candidates) or "none"
     raise LLVMError(
-        f"mitsuba_whitted: no libLLVM usable by Dr.Jit was found (found: {seen}; "
+        f"no libLLVM usable by Dr.Jit was found (found: {seen}; "
         f"LLVM 16 and older abort Dr.Jit 1.5): {INSTALL_HINT}.")
 
 
@@ -152,7 +153,7 @@ def configure() -> str | None:
         version = version_of(loaded)
         if version is not None and version < BROKEN_BELOW:
             raise LLVMError(
-                f"mitsuba_whitted: Dr.Jit has already loaded {loaded} (LLVM {version}), "
+                f"Dr.Jit has already loaded {loaded} (LLVM {version}), "
                 f"which aborts Dr.Jit 1.5: {INSTALL_HINT}, and import "
                 "mitsuba_whitted before the first LLVM variant is set.")
         return loaded
@@ -161,7 +162,7 @@ def configure() -> str | None:
         version = version_of(explicit)
         if version is not None and version < BROKEN_BELOW:
             raise LLVMError(
-                f"mitsuba_whitted: DRJIT_LIBLLVM_PATH={explicit} is LLVM {version}, "
+                f"DRJIT_LIBLLVM_PATH={explicit} is LLVM {version}, "
                 f"which aborts Dr.Jit 1.5: {INSTALL_HINT}.")
         return explicit
     try:

@@ -19,6 +19,7 @@ from pathlib import Path
 import mitsuba as mi
 
 from . import load_file
+from .errors import UsageError
 from .scene_files import check_utf8
 
 #: Mitsuba's film size when a scene gives none (``hdrfilm``'s defaults).
@@ -40,7 +41,7 @@ def load_with(path: Path, defines: dict, settings: dict) -> mi.Scene:
     try:
         root = ET.parse(path).getroot()
     except ET.ParseError as error:
-        raise RuntimeError(f"mitsuba-whitted: scene '{path}' is not well-formed XML "
+        raise UsageError(f"scene '{path}' is not well-formed XML "
                            f"({error}).") from None
     defines = dict(defines)
     for name, value in settings.items():
@@ -59,7 +60,7 @@ def load_with(path: Path, defines: dict, settings: dict) -> mi.Scene:
 def _element(root: ET.Element, where: str, path: Path) -> ET.Element:
     element = root.find(where)
     if element is None:
-        raise RuntimeError(f"mitsuba-whitted: scene '{path}' has no <{where.replace('/', '><')}> "
+        raise UsageError(f"scene '{path}' has no <{where.replace('/', '><')}> "
                            "whose settings could be changed.")
     return element
 
@@ -112,7 +113,7 @@ def _resolved(root: ET.Element, parent: ET.Element, name: str, default, defines:
         parameter = value[1:]
         declared = root.find(f"default[@name='{parameter}']")
         if parameter not in defines and declared is None:
-            raise RuntimeError(f"mitsuba-whitted: the film's {name} refers to ${parameter}, "
+            raise UsageError(f"the film's {name} refers to ${parameter}, "
                                "which has no value: declare a <default> or pass -D.")
         value = defines.get(parameter) or declared.get("value")
     return int(value)

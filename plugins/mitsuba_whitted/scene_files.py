@@ -41,12 +41,12 @@ def check_utf8(path: str | Path, defines: dict) -> None:
     path, so no other path would read the same scene; a link to the file
     under a UTF-8 name, beside it, does."""
     if not _is_utf8(path):
-        raise ReadError(f"mitsuba-whitted: scene file '{shown(str(path))}' has a path that "
+        raise ReadError(f"scene file '{shown(str(path))}' has a path that "
                         "is not UTF-8, which Mitsuba cannot open; rename it, or link to it "
                         "under a UTF-8 name.")
     for name, value in defines.items():
         if not (_is_utf8(name) and _is_utf8(value)):
-            raise ReadError(f"mitsuba-whitted: -D {shown(name)}={shown(str(value))} is not "
+            raise ReadError(f"-D {shown(name)}={shown(str(value))} is not "
                             "UTF-8, which Mitsuba's parser cannot take.")
 
 

@@ -7,6 +7,8 @@ from pathlib import Path
 
 import mitsuba as mi
 
+from ..errors import UsageError
+from ..integrators.settings import is_whitted
 from ..overrides import load_with
 from ..system import machine
 from .bound import CASTS, launch_split, ray_casting_bound
@@ -69,8 +71,8 @@ def headline(scene_path: Path, settings: BenchSettings, report) -> dict:
     ``scene_path``; the scene is released when this returns."""
     scene = load_with(scene_path, settings.defines, settings.scene_settings)
     integrator = scene.integrator()
-    if not hasattr(integrator, "capture_rays"):
-        raise RuntimeError("mitsuba-whitted bench: the scene's integrator is not 'whitted'.")
+    if not is_whitted(integrator):
+        raise UsageError("the scene's integrator is not 'whitted'.", "mitsuba-whitted bench")
     report("timing warm renders ...")
     timing = time_render(scene, integrator, settings.repeats)
     casting = ({"bound": None, "split": None, "not_measured": {"bound": INDIRECT_UNCAPTURED}}

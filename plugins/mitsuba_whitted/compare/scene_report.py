@@ -19,6 +19,7 @@ import numpy as np
 
 from .. import load_file
 from ..distributed import SceneSource
+from ..errors import Error
 from ..files import check_folder, check_readable, write_text
 from ..integrators.film import developed_format, develops_to_rgb
 from ..scene_files import check_not_read
@@ -47,7 +48,7 @@ FOLDER_MARK = ".mitsuba-whitted-compare"
 CROP_SIDE, CROP_WIDTH = 24, 192
 
 
-class CompareError(ValueError):
+class CompareError(Error, ValueError):
     """Bad input to the comparison, said in one sentence."""
 
 
@@ -61,7 +62,7 @@ class CompareOptions:
     @classmethod
     def make(cls, quick: bool = False, reference_spp: int | None = None) -> "CompareOptions":
         if reference_spp is not None and not REFERENCE_PASSES <= reference_spp <= MAX_SPP:
-            raise CompareError(f"mitsuba-whitted: --reference-spp must be from "
+            raise CompareError(f"--reference-spp must be from "
                                f"{REFERENCE_PASSES} to {MAX_SPP} (got {reference_spp}).")
         if quick:
             spp = reference_spp or 64
@@ -94,11 +95,11 @@ def load_scene(path: str | Path, defines: dict | None = None) -> mi.Scene:
     path = check_readable(path)
     scene = load_file(path, **(defines or {}))
     if not scene.sensors():
-        raise CompareError(f"mitsuba-whitted: scene '{path}' has no sensor, "
+        raise CompareError(f"scene '{path}' has no sensor, "
                            f"so there is no image to compare.")
     film = scene.sensors()[0].film()
     if not develops_to_rgb(film):
-        raise CompareError(f"mitsuba-whitted: the film of scene '{path}' develops to "
+        raise CompareError(f"the film of scene '{path}' develops to "
                            f"{developed_format(film).name}, and compare measures RGB images; "
                            "give it a pixel_format of 'rgb' or 'rgba'.")
     return scene
@@ -113,9 +114,9 @@ def check_report_folder(out: str | Path) -> Path:
     found = sorted(p.name for p in out.iterdir()) if out.is_dir() else []
     if found and FOLDER_MARK not in found:
         shown = ", ".join(f"'{name}'" for name in found[:3]) + (", ..." if len(found) > 3 else "")
-        raise CompareError(f"mitsuba-whitted compare: folder '{out}' holds files that compare "
-                           f"did not write ({shown}), which its report would replace; give "
-                           "--out a new or empty folder, or one that compare wrote.")
+        raise CompareError(f"folder '{out}' holds files that compare did not write "
+                           f"({shown}), which its report would replace; give --out a new or "
+                           "empty folder, or one that compare wrote.", "mitsuba-whitted compare")
     return out
 
 

@@ -29,6 +29,7 @@ from itertools import zip_longest
 import mitsuba as mi
 import numpy as np
 
+from ..integrators.settings import is_whitted
 from ..jit import release_scenes, timed
 from ..overrides import load_with
 from .intervals import SEED, Draws, tile_pixels, tile_sums
@@ -58,7 +59,7 @@ class Setting:
 def scene_whitted_settings(scene: mi.Scene) -> dict:
     """The scene's own ``whitted`` settings (empty for other integrators)."""
     integrator = scene.integrator()
-    if integrator is None or not hasattr(integrator, "properties"):
+    if not is_whitted(integrator):
         return {}
     return integrator.properties()
 

@@ -76,7 +76,7 @@ def backend(workers: int | None = None, cluster: str | None = None):
     neither is given (nor ``RAY_ADDRESS``), else Ray, which is stopped or
     left when the block ends."""
     if workers is not None and workers < 1:
-        raise ClusterError(f"mitsuba-whitted: --workers must be at least 1 (got {workers}).")
+        raise ClusterError(f"--workers must be at least 1 (got {workers}).")
     address = cluster or os.environ.get("RAY_ADDRESS") or None
     if workers is None and address is None:
         yield InProcess()
@@ -85,7 +85,7 @@ def backend(workers: int | None = None, cluster: str | None = None):
         from .ray_backend import RayBackend
     except ImportError:
         asked = ("--cluster" if cluster else "RAY_ADDRESS" if address else "--workers")
-        raise ClusterError(f"mitsuba-whitted: {asked} needs Ray, which is not installed: "
+        raise ClusterError(f"{asked} needs Ray, which is not installed: "
                            "pip install 'mitsuba-whitted[cluster]'.") from None
     with RayBackend.start(workers, address) as ray_backend:
         yield ray_backend

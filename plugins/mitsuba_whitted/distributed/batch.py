@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ..errors import Error
 from ..files import check_folder, check_readable
 from ..scene_files import check_not_read
 from .backends import InProcess, run_job
@@ -12,7 +13,7 @@ from .scene import SceneSource
 from .task import Task
 
 
-class BatchError(ValueError):
+class BatchError(Error, ValueError):
     """Two scenes of a batch would write the same image."""
 
 
@@ -26,7 +27,7 @@ def output_paths(scenes: list[Path], out_dir: Path, suffix: str) -> list[Path]:
         check_readable(scene)
         output = out_dir / f"{scene.stem}{suffix}"
         if output in seen:
-            raise BatchError(f"mitsuba-whitted: '{seen[output]}' and '{scene}' would both be "
+            raise BatchError(f"'{seen[output]}' and '{scene}' would both be "
                              f"written to '{output}'; rename one of them.")
         seen[output] = scene
         outputs.append(output)

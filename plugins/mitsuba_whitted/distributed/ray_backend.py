@@ -83,7 +83,7 @@ def _scene_and_integrator(task, bundle, contents):
 def host_and_port(address: str) -> tuple[str, int]:
     host, sep, port = address.split("://")[-1].rpartition(":")
     if not sep or not host or not port.isdigit():
-        raise ClusterError(f"mitsuba-whitted: a cluster address is HOST:PORT (got '{address}').")
+        raise ClusterError(f"a cluster address is HOST:PORT (got '{address}').")
     return host.strip("[]"), int(port)
 
 
@@ -95,7 +95,7 @@ def check_reachable(address: str) -> None:
             pass
     except OSError as error:
         reason = error.strerror or type(error).__name__
-        raise ClusterError(f"mitsuba-whitted: no Ray cluster answers at {address} "
+        raise ClusterError(f"no Ray cluster answers at {address} "
                            f"({reason.lower()}).") from None
 
 
@@ -158,7 +158,7 @@ def _join(address: str) -> None:
                 ray.exceptions.RayError) as error:
             failure = error
     if failure is not None:
-        raise ClusterError(f"mitsuba-whitted: could not join the Ray cluster at {address}: "
+        raise ClusterError(f"could not join the Ray cluster at {address}: "
                            f"{_join_failure(failure, ray_log.getvalue())}") from None
     sys.stderr.write(ray_log.getvalue())
 
@@ -265,9 +265,9 @@ class RayBackend:
             cause = error.cause
             if isinstance(cause, (RuntimeError, ValueError, OSError)):
                 raise cause from None
-            raise ClusterError(f"mitsuba-whitted: a task of {source.label} (seed {task.seed}) "
+            raise ClusterError(f"a task of {source.label} (seed {task.seed}) "
                                f"failed: {type(cause).__name__}: {cause}") from None
         except ray.exceptions.RayError as error:
             raise ClusterError(
-                f"mitsuba-whitted: a task of {source.label} (seed {task.seed}) was lost on each "
+                f"a task of {source.label} (seed {task.seed}) was lost on each "
                 f"of its {MAX_RETRIES + 1} attempts ({type(error).__name__}).") from None

@@ -21,8 +21,10 @@ import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 
+from ..errors import Error
 
-class SceneShippingError(RuntimeError):
+
+class SceneShippingError(Error, RuntimeError):
     """A scene that cannot be sent to another process."""
 
 
@@ -82,7 +84,7 @@ class SceneSource:
 
         if self.path is None:
             raise SceneShippingError(
-                "mitsuba-whitted: a scene made in Python has no file to send to other "
+                "a scene made in Python has no file to send to other "
                 "processes; render it in-process or load it from a scene file.")
         files, contents = [], {}
         for name, path in named_files(self.path):

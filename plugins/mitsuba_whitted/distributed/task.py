@@ -17,6 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import ClusterError
+
 
 @dataclass(frozen=True)
 class Task:
@@ -63,8 +65,8 @@ def prepare_process(environment: Environment, threads: int | None = None) -> Non
 
     here = (mi.__version__, mitsuba_whitted.__version__)
     if here != (environment.mitsuba, environment.package):
-        raise RuntimeError(
-            f"mitsuba-whitted: the worker on {socket.gethostname()} has mitsuba {here[0]} and "
+        raise ClusterError(
+            f"the worker on {socket.gethostname()} has mitsuba {here[0]} and "
             f"mitsuba-whitted {here[1]}, but the job needs mitsuba {environment.mitsuba} and "
             f"mitsuba-whitted {environment.package}; install the same versions on every node.")
     if mi.variant() != environment.variant:

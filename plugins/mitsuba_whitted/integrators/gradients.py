@@ -89,8 +89,8 @@ def require_differentiable(indirect_samples: int) -> None:
     differentiation, or the integrator gathers indirect light."""
     if not dr.is_diff_v(mi.Float):
         raise VariantError(
-            f"{PLUGIN_NAME}: gradients need a variant with automatic differentiation such as "
-            f"'llvm_ad_rgb' (the active variant is '{mi.variant()}').")
+            "gradients need a variant with automatic differentiation such as 'llvm_ad_rgb' "
+            f"(the active variant is '{mi.variant()}').", PLUGIN_NAME)
     check(indirect_samples == 0, PLUGIN_NAME, "indirect_samples",
           f"is {indirect_samples}, and the indirect light is not differentiated: "
           "set it to 0 for gradients")

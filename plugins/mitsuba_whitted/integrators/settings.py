@@ -84,6 +84,12 @@ SETTINGS = {
 }
 
 
+def is_whitted(integrator) -> bool:
+    """Whether ``integrator`` is a ``whitted`` (its class is made anew for
+    each variant, so it is told by the name it registers under)."""
+    return getattr(type(integrator), "plugin_name", None) == PLUGIN_NAME
+
+
 def read_settings(props: mi.Properties) -> dict:
     """The numeric settings of ``props``, each checked on its own."""
     return {name: read(props, name) for name, read in SETTINGS.items()}
@@ -155,9 +161,9 @@ def require_supported_variant():
     variant = mi.variant()
     if variant.startswith("scalar"):
         raise VariantError(
-            f"{PLUGIN_NAME}: the wavefront integrator needs a JIT variant such as "
-            f"'llvm_ad_rgb' or 'cuda_ad_rgb' (the active variant is '{variant}').")
+            "the wavefront integrator needs a JIT variant such as 'llvm_ad_rgb' or "
+            f"'cuda_ad_rgb' (the active variant is '{variant}').", PLUGIN_NAME)
     if not variant.endswith("_rgb"):
         raise VariantError(
-            f"{PLUGIN_NAME}: only RGB variants are supported (the active variant is "
-            f"'{variant}'); use 'llvm_ad_rgb' or 'cuda_ad_rgb'.")
+            f"only RGB variants are supported (the active variant is '{variant}'); use "
+            "'llvm_ad_rgb' or 'cuda_ad_rgb'.", PLUGIN_NAME)

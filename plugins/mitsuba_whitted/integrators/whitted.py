@@ -146,6 +146,8 @@ class WhittedIntegrator(mi.SamplingIntegrator):
             </integrator>
     """
 
+    plugin_name = PLUGIN_NAME
+
     def __init__(self, props: mi.Properties):
         # Refused before Mitsuba's base class warns about scalar variants.
         require_supported_variant()
