@@ -59,8 +59,13 @@ class Progress:
         if self.bar is None or _starts_anew(done, total, self.bar.n, self.bar.total):
             self.finish()
             size = {} if _sized(self.stream) else DEFAULT_SIZE
+            # Every update may redraw (at most every ``min_interval``): tqdm's
+            # own guess of the updates to skip, from the last jump, would
+            # let a render's first pass hide the single steps of the
+            # refinement levels after it.
             self.bar = tqdm(total=total, desc=what, file=self.stream, leave=False,
-                            dynamic_ncols=not size, mininterval=self.min_interval, **size)
+                            dynamic_ncols=not size, mininterval=self.min_interval, miniters=1,
+                            **size)
         self.bar.set_description_str(what, refresh=False)
         self.bar.update(done - self.bar.n)
 

@@ -205,14 +205,16 @@ class LaunchSplit:
 
 class _FirstLaunchClock:
     """An integrator ``progress`` callback: the time at which the first
-    launch's samples are all traced (the frozen kernels have launched their
-    work when ``progress`` is called; the clock waits for it)."""
+    launch's ``samples`` are all traced, read once the device is done with
+    them. The count of a render in one band begins with those samples
+    (:mod:`mitsuba_whitted.integrators.render_progress`)."""
 
-    def __init__(self):
+    def __init__(self, samples: int):
+        self.samples = samples
         self.done_at = None
 
-    def __call__(self, done: int, expected: int, message: str) -> None:
-        if self.done_at is None and done == expected:
+    def __call__(self, done: int, total: int, message: str) -> None:
+        if self.done_at is None and done >= self.samples:
             dr.sync_thread()
             self.done_at = time.perf_counter()
 
@@ -252,7 +254,7 @@ def launch_split(scene: mi.Scene, integrator, captured: list, first_samples: int
              for casts in parts]
 
     def clocked_render():
-        clock = _FirstLaunchClock()
+        clock = _FirstLaunchClock(first_samples)
         integrator.progress = clock
         start = time.perf_counter()
         try:

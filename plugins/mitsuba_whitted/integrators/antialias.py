@@ -144,6 +144,28 @@ def _block_means(radiance: mi.Color3f, alpha: mi.Float, block: int) -> tuple:
     return sum_blocks(radiance, block) * scale, sum_blocks(alpha, block) * scale
 
 
+class GridSampler:
+    """Pixel centres (``n`` = 1) or n x n grids (:func:`render_grid`), called
+    as the adaptive and contrast samplers are: a first pass and nothing
+    after it."""
+
+    #: Passes a band may take after its first (the progress display
+    #: counts them).
+    refinement_levels = 0
+
+    def __init__(self, n: int, lens: bool = False):
+        self.n = n
+        self.lens = lens
+
+    def render(self, band: Band, shade: ShadeFn, refined_before: int = 0):
+        """Pixels of ``band``; grids refine nothing, so no key follows
+        ``refined_before``."""
+        return render_grid(band, self.n, shade, self.lens)
+
+    def first_pass_samples(self, band: Band) -> int:
+        return band.pixels * self.n * self.n
+
+
 def render_grid(band: Band, n: int, shade: ShadeFn, lens: bool = False):
     """Box-filtered pixels of ``band`` from n x n stratified samples (n = 1:
     centres), stratified on the lens too if ``lens``. The samples are
@@ -252,6 +274,17 @@ class AdaptiveSampler:
         #: a 2 x 2 grid), and a sample looks from a point of its quarter.
         self.lens = lens
 
+    @property
+    def refinement_levels(self) -> int:
+        """Levels a band may take after its first (the progress display
+        counts them)."""
+        return self.max_depth
+
+    @staticmethod
+    def first_pass_samples(band: Band) -> int:
+        """Samples of ``band``'s first level: its pixels' four quadrants."""
+        return 4 * band.pixels
+
     def render(self, band: Band, shade: ShadeFn, refined_before: int = 0):
         """Pixels of ``band``. Its first level's keys are four per pixel of
         the crop window; deeper levels' keys follow the first level of the
@@ -354,6 +387,10 @@ class ContrastSampler:
     ``samples_per_side^2`` Hammersley points in every pixel whose
     neighbourhood contrast passes ``threshold``."""
 
+    #: Passes a band may take after its centres (the progress display
+    #: counts them).
+    refinement_levels = 1
+
     def __init__(self, threshold: float, samples_per_side: int, budget: SampleBudget,
                  warn: Callable[[str], None], lens: bool = False):
         self.threshold = threshold
@@ -364,6 +401,12 @@ class ContrastSampler:
         #: from a point hashed from the pixel (so blur shows as contrast),
         #: its refinement's points from their next Halton coordinates.
         self.lens = lens
+
+    @staticmethod
+    def first_pass_samples(band: Band) -> int:
+        """Samples of ``band``'s centres, those of the rows next to it
+        included (see :meth:`render`)."""
+        return band.widened(1).pixels
 
     def render(self, band: Band, shade: ShadeFn, refined_before: int = 0):
         """Pixels of ``band``. Centre samples are keyed by their pixel in the

@@ -15,15 +15,16 @@ class CameraShader:
     """``shade(positions, keys, lens=None)``: radiance and alpha of the
     camera rays through ``positions`` (pixel units in the crop window) from
     ``lens`` (see ``camera_rays``), traced in launches of at most ``batch``
-    rays."""
+    rays. ``progress(done, total)``, where given, hears of each call's
+    launches: ``done`` of its ``total`` samples traced, ``done == total``
+    once, when all of them are (:class:`.render_progress.RenderProgress`
+    tells the calls apart by it)."""
 
     def __init__(self, tracer, sensor: mi.Sensor, progress=None, indirect_samples: int = 0):
         self.tracer = tracer
         self.sensor = sensor
         self.progress = progress
         self.batch = tracer.camera_batch
-        #: What the progress display calls the samples being traced.
-        self.label = "camera samples"
         #: Indirect paths per pixel, shared among its camera samples.
         self.indirect_samples = indirect_samples
 
@@ -63,7 +64,7 @@ class CameraShader:
                 None if lens is None else dr.gather(mi.Point2f, lens, part),
                 None if paths is None else dr.gather(mi.Float, paths, part))
 
-        outputs = in_launches(total, self.batch, trace, lambda stop: self._report(stop, total))
+        outputs = in_launches(total, self.batch, trace, lambda stop: self._launched(stop, total))
         dr.eval(outputs)
         # Wait here, where Dr.Jit lets other Python threads run: the
         # samplers' next dr.compress would wait for these launches holding
@@ -72,13 +73,15 @@ class CameraShader:
         self._report(total, total)
         return outputs
 
+    def _launched(self, stop: int, total: int) -> None:
+        """Report a launch but the last: the call's end is reported once,
+        after its samples are traced."""
+        if stop < total:
+            self._report(stop, total)
+
     def _report(self, done: int, total: int) -> None:
         if self.progress is not None:
-            self.progress(done, total, self.label)
-
-
-def band_label(index: int, count: int) -> str:
-    return "camera samples" if count == 1 else f"camera samples, band {index + 1} of {count}"
+            self.progress(done, total)
 
 
 def sensor_of(scene: mi.Scene, sensor) -> mi.Sensor:

@@ -20,11 +20,12 @@ from ..jit import to_int
 from ..parameters import LastValid
 from ..render_lock import one_at_a_time
 from . import antialias, gradients, render_plan
-from .camera_shader import CameraShader, band_label, has_aperture, sensor_of, settle_sampler
+from .camera_shader import CameraShader, has_aperture, sensor_of, settle_sampler
 from .film import (adjoint_pixels, developed, developed_format, film_channels, film_entries,
                    image_block)
 from .lighting import LightingSettings
 from .render_plan import Demand, RenderPlan, plan_render
+from .render_progress import RenderProgress
 from .scene_checks import check_emitters, check_placements
 from .scene_needs import SceneNeeds, analyse
 from .scene_ref import identity
@@ -161,7 +162,8 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         self._exposed = Exposed(settings)
         self._state_valid = LastValid(PLUGIN_NAME, nested=False)
         self.parameters_changed()
-        #: Called as ``progress(done, expected, message)`` while rendering.
+        #: Called as ``progress(done, total, message)`` while rendering, one
+        #: count for the whole render (:mod:`.render_progress`).
         self.progress = None
         #: Set to keep every ray the next render casts in ``last_rays``.
         self.capture_rays = False
@@ -369,16 +371,19 @@ class WhittedIntegrator(mi.SamplingIntegrator):
             prepare()
         tracer.captured = [] if self.capture_rays else None
         total = antialias.SampleCount()
-        lens = self.aa != "none" and aperture
+        sampler = self._sampler(lens=self.aa != "none" and aperture)
+        bands = list(plan.bands())
         with tracer.scene_ref.holding(scene):
-            shade = (shader or CameraShader)(tracer, sensor, self.progress,
+            progress = RenderProgress(self.progress, sampler, bands)
+            shade = (shader or CameraShader)(tracer, sensor, progress.traced,
                                              self.indirect_samples)
-            for index, band in enumerate(plan.bands()):
-                shade.label = band_label(index, plan.band_count)
-                radiance, alpha, count = self._sample_pixels(band, shade, total.refined, lens)
+            for band in bands:
+                progress.start_band(band)
+                radiance, alpha, count = sampler.render(band, shade, total.refined)
                 _require_finite(radiance, alpha)
                 take(band, radiance, alpha)
                 total.add(count)
+                progress.end_band()
         self._record(tracer, total, plan)
 
     def _demand(self, film: mi.Film, tracer, film_entries: int, held_bytes: int) -> Demand:
@@ -407,21 +412,20 @@ class WhittedIntegrator(mi.SamplingIntegrator):
                   f"camera sample stops at {MAX_TREE_RAYS} rays; lower 'max_depth' or raise "
                   "'min_throughput'.")
 
-    def _sample_pixels(self, band, shade, refined_before: int, lens: bool):
-        """Radiance, alpha and sample count of ``band``; its refinement
-        samples' keys follow the ``refined_before`` of the bands above.
-        ``lens``: whether the samples take points of the sensor's aperture."""
+    def _sampler(self, lens: bool):
+        """What places and traces each band's camera samples, for ``aa``:
+        ``render(band, shade, refined_before)`` gives the band's radiance,
+        alpha and sample count, its refinement samples' keys following the
+        ``refined_before`` of the bands above. ``lens``: whether the samples
+        take points of the sensor's aperture."""
         budget = antialias.SampleBudget(self.aa_budget, render_plan.BAND_SAMPLES)
         if self.aa == "adaptive":
-            sampler = antialias.AdaptiveSampler(self.aa_threshold, self.aa_max_depth, budget,
-                                                _warn, lens)
-            return sampler.render(band, shade, refined_before)
+            return antialias.AdaptiveSampler(self.aa_threshold, self.aa_max_depth, budget,
+                                             _warn, lens)
         if self.aa == "contrast":
-            sampler = antialias.ContrastSampler(self.aa_threshold, self.aa_samples, budget,
-                                                _warn, lens)
-            return sampler.render(band, shade, refined_before)
-        n = self.aa_samples if self.aa == "grid" else 1
-        return antialias.render_grid(band, n, shade, lens)
+            return antialias.ContrastSampler(self.aa_threshold, self.aa_samples, budget,
+                                             _warn, lens)
+        return antialias.GridSampler(self.aa_samples if self.aa == "grid" else 1, lens)
 
     def _note_indirect_model(self) -> None:
         """The ambient term and tinted shadows stand in for light that the
