@@ -72,3 +72,15 @@ def one_line(stderr: str) -> str:
     assert not line.rstrip(".").endswith(":"), line
     return line
 
+
+
+def limit_whitted(monkeypatch, **limits) -> None:
+    """Every ``whitted`` made until the test ends plans its renders with
+    these :class:`~mitsuba_whitted.integrators.render_plan.Limits` (a
+    ``band_samples`` that cuts a small film into bands, a ``memory``)."""
+    import mitsuba as mi
+
+    from mitsuba_whitted.integrators.render_plan import Limits
+
+    whitted = type(mi.load_dict({"type": "whitted"}))
+    monkeypatch.setattr(whitted, "limits", Limits(**limits))

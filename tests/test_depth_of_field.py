@@ -22,9 +22,8 @@ import numpy as np
 import pytest
 from scipy import integrate, special
 
-from conftest import assert_finite
+from conftest import assert_finite, limit_whitted
 from mitsuba_whitted.compare import equivalence_test
-from mitsuba_whitted.integrators import render_plan
 from mitsuba_whitted.integrators import whitted as whitted_module
 from validation.scenes import integrator, scene
 
@@ -248,10 +247,9 @@ def test_depth_of_field_is_deterministic_and_does_not_depend_on_bands(settings, 
     loaded = cosine_scene(thin_lens(0.4, DISTANCE / 2, size=16))
     whole, _ = render(loaded, **settings)
     np.testing.assert_array_equal(render(loaded, **settings)[0], whole)
-    monkeypatch.setattr(render_plan, "TYPICAL_SAMPLES", settings["aa_budget"])
-    monkeypatch.setattr(render_plan, "BAND_SAMPLES", 4 * 16 * settings["aa_budget"])
-    if settings["aa"] == "grid":
-        monkeypatch.setattr(render_plan, "BAND_SAMPLES", 4 * 16)
+    per_pixel = 1 if settings["aa"] == "grid" else settings["aa_budget"]
+    limit_whitted(monkeypatch, typical_samples=settings["aa_budget"],
+                  band_samples=4 * 16 * per_pixel)
     banded, whitted = render(loaded, **settings)
     assert whitted.last_stats["bands"] > 1
     np.testing.assert_array_equal(banded, whole)

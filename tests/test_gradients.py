@@ -15,7 +15,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from conftest import SRGB_TO_XYZ, read_only
+from conftest import SRGB_TO_XYZ, limit_whitted, read_only
 from mitsuba_whitted.compare import equivalence_test
 from mitsuba_whitted.compare.gradient_equivalence import (gradient_values,
                                                           prb_gradient_batches, whitted_gradient)
@@ -294,8 +294,6 @@ def test_forward_mode_holds_no_more_than_one_band_of_launches(monkeypatch):
     the next band: the shader that records them holds no more launches
     than the band being rendered has made, and the tangent image is that
     of a render in one band, bit for bit."""
-    from mitsuba_whitted.integrators import render_plan
-
     described = gallery(size=16, aa="grid")
     key, component = "lens.bsdf.specular_transmittance.value", 1
     whole = forward_image(described, key, component)
@@ -311,7 +309,7 @@ def test_forward_mode_holds_no_more_than_one_band_of_launches(monkeypatch):
     monkeypatch.setattr(gradients, "RecordingShader", CountingShader)
     # Four rows of 16 pixels per band, one sample each (aa 'grid' reduces
     # its samples launch by launch): four bands.
-    monkeypatch.setattr(render_plan, "BAND_SAMPLES", 4 * 16)
+    limit_whitted(monkeypatch, band_samples=4 * 16)
     banded = forward_image(described, key, component)
     bands = [band for band, _ in held]
     assert len(set(bands)) == 4
@@ -340,10 +338,8 @@ def test_forward_mode_in_bands_is_forward_mode_in_one(monkeypatch, key, rows):
     """Every tangent of the parameter reaches each band's pixels once: the
     tangent image is that of a render in one band, bit for bit, for a
     texture seen directly, through glass and in a mirror."""
-    from mitsuba_whitted.integrators import render_plan
-
     whole = tangent_image_in_one_band(key)   # before the band size changes
-    monkeypatch.setattr(render_plan, "BAND_SAMPLES", rows * BANDED_SIZE)
+    limit_whitted(monkeypatch, band_samples=rows * BANDED_SIZE)
     banded = forward_image(gallery(size=BANDED_SIZE), key)
     assert np.abs(whole).max() > 0
     np.testing.assert_array_equal(banded, whole)
@@ -559,8 +555,7 @@ def test_a_tile_too_large_for_memory_is_refused_naming_the_parameter(monkeypatch
     """The primal render fits; the tile traced again with AD would not."""
     from mitsuba_whitted.integrators import render_plan
     tile_bytes = gradients.TILE_FACTOR * (1 << 18) * gradients.TILE_SAMPLE_BYTES
-    monkeypatch.setattr(render_plan, "available_memory",
-                        lambda: render_plan.RESERVE + tile_bytes // 2)
+    limit_whitted(monkeypatch, memory=lambda: render_plan.RESERVE + tile_bytes // 2)
     loaded = mi.load_dict(gallery(size=8))
     params = mi.traverse(loaded)
     dr.enable_grad(params["key.intensity.value"])

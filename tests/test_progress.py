@@ -11,8 +11,7 @@ import time
 
 import mitsuba as mi
 
-from conftest import cli
-from mitsuba_whitted.integrators import render_plan
+from conftest import cli, limit_whitted
 from mitsuba_whitted.progress import LINE_INTERVAL_VARIABLE, Progress
 from validation.scenes import (REPORT_SCENE, camera, diffuse, floor, integrator, point_light,
                                scene, sphere)
@@ -93,7 +92,7 @@ def banded_adaptive_render(monkeypatch, progress) -> dict:
     """Adaptive anti-aliasing of spheres' silhouettes over a 24 x 24 film
     in bands of a few rows (as in test_render_plan), reported to
     ``progress``: the render's statistics."""
-    monkeypatch.setattr(render_plan, "BAND_SAMPLES", 2000)
+    limit_whitted(monkeypatch, band_samples=2000)
     loaded = mi.load_dict(scene(floor(), sphere((-0.6, 0, 0), 0.5, diffuse(0.8, 0.3, 0.2)),
                                 sphere((0.7, 0, 0.3), 0.6, {"type": "dielectric"}),
                                 point_light((1, 3, 3)), sensor=camera(origin=(0, 1, 5))))

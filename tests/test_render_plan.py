@@ -8,11 +8,11 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from conftest import assert_finite
+from conftest import assert_finite, limit_whitted
 from mitsuba_whitted.errors import ParameterError
-from mitsuba_whitted.integrators import antialias, render_plan
+from mitsuba_whitted.integrators import antialias
 from mitsuba_whitted.integrators import whitted as whitted_module
-from mitsuba_whitted.integrators.render_plan import Demand, plan_render
+from mitsuba_whitted.integrators.render_plan import Demand, Limits, plan_render
 from validation.scenes import (camera, diffuse, floor, glass_scene, integrator, point_light, rgb,
                               scene, sphere)
 
@@ -28,8 +28,10 @@ def lit_scene(size=24, **film):
                               point_light((1, 3, 3)), sensor=sensor))
 
 
-def render(loaded, **settings):
+def render(loaded, limits=None, **settings):
     whitted = mi.load_dict(integrator(**settings))
+    if limits is not None:
+        whitted.limits = limits
     image = np.array(mi.render(loaded, integrator=whitted))
     return image, whitted
 
@@ -37,11 +39,11 @@ def render(loaded, **settings):
 @pytest.fixture
 def small_bands(monkeypatch):
     """Bands of a few rows of a 20 x 20 film."""
-    monkeypatch.setattr(render_plan, "BAND_SAMPLES", 1500)
+    limit_whitted(monkeypatch, band_samples=1500)
 
 
 #: Settings, and a number of samples per band that cuts a 24 x 24 film
-#: into bands of a few rows (bands are sized for TYPICAL_SAMPLES per pixel
+#: into bands of a few rows (bands are sized for ``typical_samples`` per pixel
 #: where refinement may add samples) without stopping the refinement.
 SETTINGS = [(dict(aa="none"), 100), (dict(aa="grid", aa_samples=3), 100),
             (dict(aa="contrast", aa_samples=4, aa_threshold=0.05), 2000),
@@ -52,8 +54,7 @@ SETTINGS = [(dict(aa="none"), 100), (dict(aa="grid", aa_samples=3), 100),
 def test_bands_give_the_image_of_one_piece(settings, band_samples, monkeypatch):
     whole, whitted = render(lit_scene(), **settings)
     assert whitted.last_stats["bands"] == 1
-    monkeypatch.setattr(render_plan, "BAND_SAMPLES", band_samples)
-    banded, whitted = render(lit_scene(), **settings)
+    banded, whitted = render(lit_scene(), Limits(band_samples=band_samples), **settings)
     assert whitted.last_stats["bands"] > 3
     assert_finite(banded)
     np.testing.assert_array_equal(banded, whole)
@@ -70,11 +71,11 @@ def test_bands_with_sampled_lights_are_deterministic(small_bands):
     np.testing.assert_array_equal(first, second)
 
 
-def test_a_crop_window_is_banded_in_place(monkeypatch):
+def test_a_crop_window_is_banded_in_place():
     crop = dict(crop_offset_x=3, crop_offset_y=5, crop_width=14, crop_height=11)
     whole, _ = render(lit_scene(**crop), aa="grid", aa_samples=2)
-    monkeypatch.setattr(render_plan, "BAND_SAMPLES", 40)
-    banded, whitted = render(lit_scene(**crop), aa="grid", aa_samples=2)
+    banded, whitted = render(lit_scene(**crop), Limits(band_samples=40), aa="grid",
+                             aa_samples=2)
     assert whitted.last_stats["bands"] > 3
     np.testing.assert_array_equal(banded, whole)
 
@@ -98,19 +99,18 @@ def test_rows_to_a_file_hold_what_the_film_develops(pixel_format, small_bands):
 def test_a_band_stops_refining_where_it_would_keep_too_many_samples(monkeypatch):
     warnings = []
     monkeypatch.setattr(whitted_module, "_warn", warnings.append)
-    monkeypatch.setattr(render_plan, "BAND_SAMPLES", 3000)
-    image, whitted = render(lit_scene(), aa="adaptive", aa_max_depth=8, aa_threshold=0.0,
-                            aa_budget=400)
+    image, whitted = render(lit_scene(), Limits(band_samples=3000), aa="adaptive",
+                            aa_max_depth=8, aa_threshold=0.0, aa_budget=400)
     assert_finite(image)
     bands = whitted.last_stats["bands"]
     assert bands > 1 and whitted.last_stats["aa_samples"] <= 3000 * bands
     assert warnings and all("keeps in memory at once" in warning for warning in warnings)
 
 
-def test_a_film_too_large_for_memory_is_refused_before_it_is_allocated(monkeypatch):
-    monkeypatch.setattr(render_plan, "available_memory", lambda: 2 * GIB)
+def test_a_film_too_large_for_memory_is_refused_before_it_is_allocated():
     loaded = mi.load_dict(scene(sensor=camera(size=20000)))
     whitted = mi.load_dict(integrator())
+    whitted.limits = Limits(memory=lambda: 2 * GIB)
     with pytest.raises(ParameterError) as error:
         mi.render(loaded, integrator=whitted)
     message = str(error.value)
@@ -119,22 +119,21 @@ def test_a_film_too_large_for_memory_is_refused_before_it_is_allocated(monkeypat
     assert "\n" not in message
 
 
-def test_a_film_past_dr_jit_s_array_limit_is_refused_whatever_the_memory(monkeypatch):
-    monkeypatch.setattr(render_plan, "available_memory", lambda: 1 << 50)
+def test_a_film_past_dr_jit_s_array_limit_is_refused_whatever_the_memory():
     with pytest.raises(ParameterError, match="2\\^32"):
-        plan_render(Demand(40000, 40000, 1, 1 << 21, 40000 * 40000 * 9))
+        plan_render(Demand(40000, 40000, 1, 1 << 21, 40000 * 40000 * 9),
+                    Limits(memory=lambda: 1 << 50))
 
 
-def test_samples_that_do_not_fit_name_the_budget(monkeypatch):
-    monkeypatch.setattr(render_plan, "available_memory", lambda: GIB)
+def test_samples_that_do_not_fit_name_the_budget():
     with pytest.raises(ParameterError) as error:
-        plan_render(Demand(4000, 3000, 100000, 1 << 16, 0))
+        plan_render(Demand(4000, 3000, 100000, 1 << 16, 0), Limits(memory=lambda: GIB))
     assert str(error.value).startswith("whitted: parameter 'aa_budget'")
 
 
 def test_bands_are_sized_for_typical_refinement_and_cover_the_film():
     plan = plan_render(Demand(20000, 20000, 64, 1 << 21, 0))
-    assert plan.rows_per_band == render_plan.BAND_SAMPLES // (render_plan.TYPICAL_SAMPLES * 20000)
+    assert plan.rows_per_band == Limits().band_samples // (Limits().typical_samples * 20000)
     assert sum(band.rows for band in plan.bands()) == 20000
     assert plan.band_bytes < 2 * GIB
     assert plan_render(Demand(600, 600, 64, 1 << 21, 0)).band_count == 1
@@ -209,7 +208,7 @@ def test_the_command_writes_a_film_band_by_band_as_the_film_would_hold_it(
     from mitsuba_whitted import cli
     from mitsuba_whitted.imageio import read_image, stored_pixels
 
-    monkeypatch.setattr(render_plan, "BAND_SAMPLES", 40 * 16)
+    limit_whitted(monkeypatch, band_samples=40 * 16)
     path = tmp_path / "scene.xml"
     path.write_text(BANDED_SCENE)
     out = tmp_path / f"out{suffix}"
@@ -225,7 +224,7 @@ def test_the_command_refuses_a_film_it_cannot_hold_and_writes_nothing(tmp_path, 
                                                                       capsys):
     from mitsuba_whitted import cli
 
-    monkeypatch.setattr(render_plan, "available_memory", lambda: GIB)
+    limit_whitted(monkeypatch, memory=lambda: GIB)
     path = tmp_path / "scene.xml"
     path.write_text(BANDED_SCENE.replace('value="40"', 'value="60000"')
                     .replace('value="30"', 'value="60000"'))

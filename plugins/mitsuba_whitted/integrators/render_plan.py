@@ -7,9 +7,9 @@ alpha), a few per pixel of the band in flight (its sums, its sample count,
 the block handed to the film), and the film itself. The samples kept at
 once are bounded by cutting the film into bands of whole rows, each
 rendered and handed to the film (or to a file) before the next starts, and
-by letting no band keep more than ``BAND_SAMPLES`` samples: the adaptive and
+by letting no band keep more than ``band_samples`` samples: the adaptive and
 contrast refinements stop there as they stop at ``aa_budget``. Bands are
-sized for ``TYPICAL_SAMPLES`` per pixel (most pixels of most scenes take
+sized for ``typical_samples`` per pixel (most pixels of most scenes take
 the four of the first adaptive level), so a film of usual size is one band.
 The cut depends only on the film's size and the integrator's settings,
 never on the machine, so a render gives the same bits everywhere.
@@ -23,16 +23,12 @@ lower.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 from ..errors import ParameterError
 from ..system import available_memory, available_text
 from .settings import PLUGIN_NAME
 
-#: Most camera samples a band may keep outside the kernels at once.
-BAND_SAMPLES = 1 << 25
-#: Camera samples per pixel that bands are sized for, where a pixel may
-#: take more (adaptive and contrast refinement).
-TYPICAL_SAMPLES = 16
 #: Bytes kept per camera sample outside the kernels (position, key,
 #: radiance, alpha, the refinement's indices), with some margin.
 SAMPLE_BYTES = 40
@@ -128,21 +124,35 @@ class Demand:
     launch_sample_bytes: int = LAUNCH_SAMPLE_BYTES
 
 
-def plan_render(demand: Demand) -> RenderPlan:
+@dataclass(frozen=True)
+class Limits:
+    """What bounds the memory of a render. An integrator's ``limits`` are
+    these defaults unless set; a smaller ``band_samples`` cuts even a small
+    film into bands."""
+    #: Most camera samples a band may keep outside the kernels at once.
+    band_samples: int = 1 << 25
+    #: Camera samples per pixel that bands are sized for, where a pixel may
+    #: take more (adaptive and contrast refinement).
+    typical_samples: int = 16
+    #: The bytes of memory the machine has left (``None``: not known).
+    memory: Callable[[], int | None] = available_memory
+
+
+def plan_render(demand: Demand, limits: Limits = Limits()) -> RenderPlan:
     """The bands and peak memory of a render, or a :class:`ParameterError`
     naming what to lower where it cannot fit in this machine's memory or in
     Dr.Jit's arrays."""
     _check_entries(demand.film_entries, "film", demand)
     _check_entries(3 * demand.launch_samples, demand.launch_parameter, demand)
-    sized_for = min(demand.samples_per_pixel, TYPICAL_SAMPLES) * demand.width
-    rows = int(max(1, min(demand.height, BAND_SAMPLES // max(sized_for, 1))))
-    kept = min(rows * demand.width * demand.samples_per_pixel, BAND_SAMPLES)
+    sized_for = min(demand.samples_per_pixel, limits.typical_samples) * demand.width
+    rows = int(max(1, min(demand.height, limits.band_samples // max(sized_for, 1))))
+    kept = min(rows * demand.width * demand.samples_per_pixel, limits.band_samples)
     plan = RenderPlan(
         demand.width, demand.height, rows,
         film_bytes=4 * demand.film_entries + demand.held_bytes,
         band_bytes=int(kept * SAMPLE_BYTES + rows * demand.width * PIXEL_BYTES),
         launch_bytes=demand.launch_samples * demand.launch_sample_bytes)
-    _check_fits(plan, demand, available_memory())
+    _check_fits(plan, demand, limits.memory())
     return plan
 
 

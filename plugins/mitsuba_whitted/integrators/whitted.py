@@ -148,6 +148,8 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     """
 
     plugin_name = PLUGIN_NAME
+    #: What bounds a render's memory (:class:`.render_plan.Limits`).
+    limits = render_plan.Limits()
 
     def __init__(self, props: mi.Properties):
         # Refused before Mitsuba's base class warns about scalar variants.
@@ -322,7 +324,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         seed = gradients.primal_seed(seed_value(seed), self._state.seed)
         replay = gradients.Replay(self.make_tracer(scene, seed, differentiable=True), sensor)
         demand = self._demand(sensor.film(), self._tracer_for(scene, seed), 0, 0)
-        plan_render(gradients.tile_demand(demand, replay.tile))
+        plan_render(gradients.tile_demand(demand, replay.tile), self.limits)
         return sensor, seed, replay, keys
 
     @one_at_a_time
@@ -366,7 +368,8 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         self._note_long_grid()
         settle_sampler(sensor)
         tracer = self._tracer_for(scene, seed)
-        plan = plan_render(self._demand(sensor.film(), tracer, film_entries, held_bytes))
+        plan = plan_render(self._demand(sensor.film(), tracer, film_entries, held_bytes),
+                           self.limits)
         if prepare is not None:
             prepare()
         tracer.captured = [] if self.capture_rays else None
@@ -418,7 +421,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         alpha and sample count, its refinement samples' keys following the
         ``refined_before`` of the bands above. ``lens``: whether the samples
         take points of the sensor's aperture."""
-        budget = antialias.SampleBudget(self.aa_budget, render_plan.BAND_SAMPLES)
+        budget = antialias.SampleBudget(self.aa_budget, self.limits.band_samples)
         if self.aa == "adaptive":
             return antialias.AdaptiveSampler(self.aa_threshold, self.aa_max_depth, budget,
                                              _warn, lens)
