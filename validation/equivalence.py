@@ -23,8 +23,8 @@ import numpy as np
 from mitsuba_whitted import load_file
 from mitsuba_whitted.camera import camera_rays, pixel_centres
 from mitsuba_whitted.compare import (EquivalenceResult, ReferenceCache, cache_key,
-                                     equivalence_test, path_batches, scene_digest,
-                                     whitted_batches)
+                                     equivalence_test, path_batches, whitted_batches)
+from mitsuba_whitted.scene_digest import scene_digest
 from validation.scenes import (GLASS_BOX, backdrop, builtin_cylinder, camera, diffuse, floor,
                                point_light, rgb, scene, sky, sphere, wall)
 
