@@ -34,6 +34,7 @@ from mitsuba_whitted.files import replaced_folder
 from mitsuba_whitted.system import machine
 from mitsuba_whitted.distributed import SceneSource, backend
 from mitsuba_whitted.progress import Progress
+from mitsuba_whitted.scene_digest import scene_without_integrator_digest
 from validation import reference_errors
 from validation.equivalence import (ALPHA, BLEND_DIFFUSE, BLEND_WEIGHT, blend_scene,
                                     equivalence_cases, equivalence_path, equivalence_rays,
@@ -145,7 +146,8 @@ def report_scene_section(report: MarkdownReport, cache: ReferenceCache, backend)
     defines = {"res": str(SCENE_RES)}
     scene = mitsuba_whitted.load_file(REPORT_SCENE, **defines)
     source = SceneSource(REPORT_SCENE, defines, scene)
-    key = cache_key(kind="report scene", scene=source.digest,
+    key = cache_key(kind="report scene",
+                    scene=scene_without_integrator_digest(REPORT_SCENE, defines),
                     spp=SCENE_SPP, passes=16, integrator={"type": "path", "max_depth": 32})
     reference = cached_reference(cache, key, source, SCENE_SPP, progress=Progress(),
                                  backend=backend)

@@ -1,9 +1,9 @@
 """Reference renders cached on disk under a content hash.
 
-The key covers everything the reference depends on: the scene file's bytes,
-the bytes of every file it names (textures, meshes, includes), the ``-D``
-defines, the render settings, and the Mitsuba version and variant. Editing
-any of them gives a new key; nothing else does. Entries are ``.npz`` files
+The key covers everything the reference depends on: the scene as its
+renderer sees it (:mod:`..scene_digest`), the render settings, and the
+Mitsuba version and variant. Editing any of them gives a new key; nothing
+else does. Entries are ``.npz`` files
 named by the key, written whole or not at all (``files.write_atomically``),
 so an interrupted run leaves no half entry behind.
 """

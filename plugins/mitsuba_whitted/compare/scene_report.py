@@ -21,6 +21,7 @@ from .. import load_file
 from ..distributed import SceneSource
 from ..files import check_folder, check_readable, write_text
 from ..film_format import developed_format, develops_to_rgb
+from ..scene_digest import scene_without_integrator_digest
 from ..scene_files import check_not_read
 from ..system import machine
 from .cache import ReferenceCache, cache_key
@@ -149,11 +150,10 @@ def measure_scene(source: SceneSource, options: CompareOptions, cache_dir: str |
     file ``source``, and its results, without the report (``report`` is
     ``None``)."""
     cache = ReferenceCache(cache_dir)
-    settings = path_settings()
-    key = cache_key(scene=source.digest, spp=options.reference_spp,
-                    passes=REFERENCE_PASSES, integrator=settings)
-    reference = cached_reference(cache, key, source, options.reference_spp, REFERENCE_PASSES,
-                                 settings, progress, backend)
+    reference = cached_reference(cache, reference_key(source.path, source.defines,
+                                                      options.reference_spp),
+                                 source, options.reference_spp, REFERENCE_PASSES,
+                                 path_settings(), progress, backend)
     _finish(progress)
     scene = source.scene
     variants = whitted_variants(scene_whitted_settings(scene), options.quick)
@@ -168,6 +168,14 @@ def measure_scene(source: SceneSource, options: CompareOptions, cache_dir: str |
     results["film_filter"] = scene.sensors()[0].film().rfilter().class_name()
     return SceneComparison(source.path, source.defines, reference, sweep, analysis, converged,
                            None, results)
+
+
+def reference_key(scene_path: Path, defines: dict, spp: int) -> str:
+    """The cache key of a comparison's path reference. It takes the scene
+    without its integrator, which path's own settings replace, so that a
+    change only Whitted sees keeps a reference that takes minutes."""
+    return cache_key(scene=scene_without_integrator_digest(scene_path, defines), spp=spp,
+                     passes=REFERENCE_PASSES, integrator=path_settings())
 
 
 def _finish(progress):
