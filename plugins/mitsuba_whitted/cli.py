@@ -174,7 +174,7 @@ def command_bench(args) -> int:
     print(bench.format_table(results))
     if args.json:
         with last_write():
-            files.write_text(args.json, json.dumps(results, indent=2))
+            files.write_text(args.json, json.dumps(bench.results_json(results), indent=2))
     return 0
 
 

@@ -20,7 +20,8 @@ kernel cache as it is and once with an empty one.
 - :mod:`.tables`: the figures as a table.
 """
 
-from .suite import DEFAULT_SCENE, BenchSettings, run
+from .suite import DEFAULT_SCENE, BenchResults, BenchSettings, results_json, run
 from .tables import format_table
 
-__all__ = ["DEFAULT_SCENE", "BenchSettings", "format_table", "run"]
+__all__ = ["DEFAULT_SCENE", "BenchResults", "BenchSettings", "format_table", "results_json",
+           "run"]

@@ -2,19 +2,20 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import math
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import mitsuba as mi
 
 from ..overrides import load_with
 from ..system import machine
-from .bound import CASTS, launch_split, ray_casting_bound
+from .bound import Bound, LaunchSplit, launch_split, ray_casting_bound
 from . import gradients
 from .equal_error import equal_error_speedup
 from .processes import child_peak_memory, fresh_process_render, peak_rss_mib
 from ..jit import release_scenes
-from .timing import scaling_table, time_render
+from .timing import RenderTiming, ScalingRow, scaling_table, time_render
 
 DEFAULT_SCENE = Path(__file__).resolve().parents[3] / "scenes" / "cosc363.xml"
 
@@ -63,7 +64,49 @@ class BenchSettings:
         return {} if self.resolution is None else {"res": self.resolution}
 
 
-def headline(scene_path: Path, settings: BenchSettings, report) -> dict:
+@dataclass
+class Headline:
+    """The scene's own figures: its renders, rays and ray-casting bound.
+    ``bound`` and ``split`` are ``None`` where ``not_measured`` says why."""
+
+    scene: str
+    defines: dict
+    settings: dict
+    resolution: list
+    indirect_samples: int
+    timing: RenderTiming
+    rays: dict
+    rays_per_second: float
+    bound: Bound | None
+    split: LaunchSplit | None
+    not_measured: dict
+    peak_rss_mib_this_process: float
+
+
+@dataclass
+class BenchResults:
+    """Every figure of a bench run; :func:`results_json` writes it out.
+    The fresh-process figures are ``None`` where they were not measured."""
+
+    machine: str
+    headline: Headline
+    fresh_process: dict | None
+    fresh_process_empty_cache: dict | None
+    peak_rss_mib: dict
+    scaling: list[ScalingRow]
+    equal_error: dict
+    gradient: dict
+
+
+def results_json(results: BenchResults) -> dict:
+    """The figures as JSON data: the dataclasses as dictionaries, an
+    infinite bound of an interval as ``None`` (JSON has no infinity)."""
+    return asdict(results, dict_factory=lambda items: {
+        name: None if isinstance(value, float) and math.isinf(value) else value
+        for name, value in items})
+
+
+def headline(scene_path: Path, settings: BenchSettings, report) -> Headline:
     """Warm and first renders, rays by kind and the ray-casting bound of
     ``scene_path``; the scene is released when this returns."""
     scene = load_with(scene_path, settings.defines, settings.scene_settings)
@@ -72,24 +115,15 @@ def headline(scene_path: Path, settings: BenchSettings, report) -> dict:
         raise RuntimeError("mitsuba-whitted bench: the scene's integrator is not 'whitted'.")
     report("timing warm renders ...")
     timing = time_render(scene, integrator, settings.repeats)
-    casting = ({"bound": None, "split": None, "not_measured": {"bound": INDIRECT_UNCAPTURED}}
-               if integrator.indirect_samples else ray_casting(scene, integrator, settings, report))
-    return {
-        "scene": str(scene_path), "defines": settings.defines,
-        "settings": settings.scene_settings,
-        "resolution": list(scene.sensors()[0].film().crop_size()),
-        "indirect_samples": integrator.indirect_samples,
-        "first_render_in_process_s": timing.first,
-        "second_render_in_process_s": timing.second,
-        "warm_render_s": timing.warm.to_json(),
-        "warm_renders_s": timing.warm_all,
-        "rays": {k: timing.stats[k] for k in RAY_KINDS + (INDIRECT_KINDS
-                                                          if integrator.indirect_samples else ())},
-        "rays_per_second": timing.stats["total"] / timing.warm.median,
-        "aa_samples": timing.stats["aa_samples"],
-        **casting,
-        "peak_rss_mib_this_process": peak_rss_mib(),
-    }
+    bound, split, not_measured = ((None, None, {"bound": INDIRECT_UNCAPTURED})
+                                  if integrator.indirect_samples
+                                  else (*ray_casting(scene, integrator, settings, report), {}))
+    kinds = RAY_KINDS + (INDIRECT_KINDS if integrator.indirect_samples else ())
+    return Headline(str(scene_path), settings.defines, settings.scene_settings,
+                    list(scene.sensors()[0].film().crop_size()), integrator.indirect_samples,
+                    timing, {kind: timing.stats[kind] for kind in kinds},
+                    timing.stats["total"] / timing.warm.median, bound, split, not_measured,
+                    peak_rss_mib())
 
 
 #: The rays a render counts, by kind, and those of its indirect paths.
@@ -102,7 +136,8 @@ INDIRECT_UNCAPTURED = ("the indirect paths cast their rays inside their own loop
                        "would leave most of the work out")
 
 
-def ray_casting(scene: mi.Scene, integrator, settings: BenchSettings, report) -> dict:
+def ray_casting(scene: mi.Scene, integrator, settings: BenchSettings,
+                report) -> tuple[Bound, LaunchSplit]:
     """The render's own rays cast through Mitsuba's ray casting: the bound
     on the whole render, and on its first launch and the rest apart."""
     report("casting the render's own rays through Mitsuba's ray casting ...")
@@ -117,47 +152,32 @@ def ray_casting(scene: mi.Scene, integrator, settings: BenchSettings, report) ->
     split = launch_split(scene, integrator, captured, first_samples, bound.coherent,
                          settings.bound_rounds)
     del captured
-    return {
-        "bound": {**{f"{name}_{figure}": values[name] for name in CASTS
-                     for figure, values in (("rays", bound.rays), ("s", bound.seconds_by_cast),
-                                            ("coherent", bound.coherent))},
-                  "seconds": bound.seconds, "render_s": bound.render_seconds,
-                  "ratio": bound.ratio, "ratios": bound.ratios},
-        "split": {"first_launch_samples": split.first_samples,
-                  "first_launch_s": split.first_seconds, "first_launch_bound_s": split.first_bound,
-                  "first_launch_ratio": split.first_ratio,
-                  "rest_s": split.rest_seconds, "rest_bound_s": split.rest_bound,
-                  "rest_ratio": split.rest_ratio,
-                  "launches": split.launches, "frozen_call_s": split.frozen_call_seconds},
-    }
+    return bound, split
 
 
-def run(settings: BenchSettings, report=print) -> dict:
+def run(settings: BenchSettings, report=print) -> BenchResults:
     """All measurements; ``report`` receives progress lines."""
     scene_path = Path(settings.scene)
-    results = {"machine": machine(), **headline(scene_path, settings, report)}
+    scene_figures = headline(scene_path, settings, report)
     release_scenes()
+    fresh = empty = None
     if settings.fresh_processes:
         report("fresh processes (warm and empty kernel cache) ...")
-        results["fresh_process"] = fresh_process_render(scene_path, settings.defines, False)
-        results["fresh_process_empty_cache"] = fresh_process_render(scene_path, settings.defines, True)
+        fresh = fresh_process_render(scene_path, settings.defines, False)
+        empty = fresh_process_render(scene_path, settings.defines, True)
     report("peak memory in child processes ...")
-    results["peak_rss_mib"] = {
-        str(res): child_peak_memory(scene_path, settings.defines,
-                                    dict(settings.scene_settings, res=res))
-        for res in settings.memory_resolutions}
+    memory = {str(res): child_peak_memory(scene_path, settings.defines,
+                                          dict(settings.scene_settings, res=res))
+              for res in settings.memory_resolutions}
     report("scaling ...")
-    rows = scaling_table(scene_path, settings.defines, settings.scene_settings,
-                         {"res": settings.resolutions, "max_depth": settings.depths,
-                          "aa_max_depth": settings.aa_depths}, settings.repeats)
-    results["scaling"] = [{"parameter": r.parameter, "value": r.value,
-                           "seconds": r.seconds.to_json(),
-                           "rays": r.rays, "rays_per_second": r.rays_per_second} for r in rows]
+    scaling = scaling_table(scene_path, settings.defines, settings.scene_settings,
+                            {"res": settings.resolutions, "max_depth": settings.depths,
+                             "aa_max_depth": settings.aa_depths}, settings.repeats)
     report("equal error against path ...")
-    results["equal_error"] = equal_error_speedup(*settings.equal_error,
-                                                 settings.equal_error_rounds)
-    results["gradient"] = gradients.measure(
+    equal_error = equal_error_speedup(*settings.equal_error, settings.equal_error_rounds)
+    gradient = gradients.measure(
         scene_path, settings.defines, settings.scene_settings, settings.repeats,
         settings.memory_resolutions[0], settings.gradient, report,
-        indirect=results["indirect_samples"] > 0)
-    return results
+        indirect=scene_figures.indirect_samples > 0)
+    return BenchResults(machine(), scene_figures, fresh, empty, memory, scaling, equal_error,
+                        gradient)
