@@ -170,8 +170,8 @@ def command_bench(args) -> int:
         check_not_read([args.json], scene, defines)
     settings = (bench.BenchSettings.quick(scene, defines) if args.quick
                 else bench.BenchSettings(scene, defines))
-    results = bench.run(settings, report=lambda line: print(line, file=sys.stderr))
-    print(bench.format_table(results))
+    results = bench.run(settings, report=lambda line: print(line, file=sys.stderr, flush=True),
+                        show=lambda table: print(table, flush=True))
     if args.json:
         with last_write():
             files.write_text(args.json, json.dumps(bench.results_json(results), indent=2))

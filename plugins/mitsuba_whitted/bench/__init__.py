@@ -17,10 +17,12 @@ kernel cache as it is and once with an empty one.
 - :mod:`.gradients`: the time and memory of a gradient, and its error
   against ``prb``'s at equal time;
 - :mod:`.suite`: the settings and the run of all of them;
+- :mod:`.results`: the figures as dataclasses, and their JSON;
 - :mod:`.tables`: the figures as a table.
 """
 
-from .suite import DEFAULT_SCENE, BenchResults, BenchSettings, results_json, run
+from .results import BenchResults, results_json
+from .suite import DEFAULT_SCENE, BenchSettings, run
 from .tables import format_table
 
 __all__ = ["DEFAULT_SCENE", "BenchResults", "BenchSettings", "format_table", "results_json",

@@ -2,8 +2,7 @@
 
 from __future__ import annotations
 
-import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import mitsuba as mi
@@ -11,11 +10,12 @@ import mitsuba as mi
 from ..overrides import load_with
 from ..system import machine
 from .bound import Bound, LaunchSplit, launch_split, ray_casting_bound
-from . import gradients
+from .results import BenchResults, Headline
+from . import gradients, tables
 from .equal_error import equal_error_speedup
 from .processes import child_peak_memory, fresh_process_render, peak_rss_mib
 from ..jit import release_scenes
-from .timing import RenderTiming, ScalingRow, scaling_table, time_render
+from .timing import scaling_table, time_render
 
 DEFAULT_SCENE = Path(__file__).resolve().parents[3] / "scenes" / "cosc363.xml"
 
@@ -38,14 +38,17 @@ class BenchSettings:
     memory_resolutions: tuple = (600, 2048)
     fresh_processes: bool = True
     #: Equal-error scene: resolution, reference spp, largest path spp. The
-    #: reference's own noise (which the bench reports) must stay below
+    #: reference's own noise (which the bench reports) must stay well below
     #: every error compared, and path's ladder must reach past Whitted's
-    #: best settings.
-    equal_error: tuple = (128, 65536, 16384)
+    #: best settings. relMSE is a mean over pixels, so a smaller film
+    #: leaves the errors compared as they are (its edge pixels, where
+    #: Whitted's error lies, weigh a little more) and costs path a quarter
+    #: of the time per halving of its side.
+    equal_error: tuple = (64, 65536, 8192)
     #: Timing rounds of the equal-error sweep: each times path's two
     #: ladders up to the largest spp, seconds a round, so fewer than
     #: ``repeats``.
-    equal_error_rounds: int = 5
+    equal_error_rounds: int = 3
     #: Gradients at equal error: resolution, largest prb spp, prb seeds.
     gradient: tuple = (64, 1024, 8)
 
@@ -62,48 +65,6 @@ class BenchSettings:
         """What :func:`~mitsuba_whitted.overrides.load_with` changes in the
         scene for the headline."""
         return {} if self.resolution is None else {"res": self.resolution}
-
-
-@dataclass
-class Headline:
-    """The scene's own figures: its renders, rays and ray-casting bound.
-    ``bound`` and ``split`` are ``None`` where ``not_measured`` says why."""
-
-    scene: str
-    defines: dict
-    settings: dict
-    resolution: list
-    indirect_samples: int
-    timing: RenderTiming
-    rays: dict
-    rays_per_second: float
-    bound: Bound | None
-    split: LaunchSplit | None
-    not_measured: dict
-    peak_rss_mib_this_process: float
-
-
-@dataclass
-class BenchResults:
-    """Every figure of a bench run; :func:`results_json` writes it out.
-    The fresh-process figures are ``None`` where they were not measured."""
-
-    machine: str
-    headline: Headline
-    fresh_process: dict | None
-    fresh_process_empty_cache: dict | None
-    peak_rss_mib: dict
-    scaling: list[ScalingRow]
-    equal_error: dict
-    gradient: dict
-
-
-def results_json(results: BenchResults) -> dict:
-    """The figures as JSON data: the dataclasses as dictionaries, an
-    infinite bound of an interval as ``None`` (JSON has no infinity)."""
-    return asdict(results, dict_factory=lambda items: {
-        name: None if isinstance(value, float) and math.isinf(value) else value
-        for name, value in items})
 
 
 def headline(scene_path: Path, settings: BenchSettings, report) -> Headline:
@@ -155,29 +116,39 @@ def ray_casting(scene: mi.Scene, integrator, settings: BenchSettings,
     return bound, split
 
 
-def run(settings: BenchSettings, report=print) -> BenchResults:
-    """All measurements; ``report`` receives progress lines."""
+def run(settings: BenchSettings, report=print, show=None) -> BenchResults:
+    """All measurements; ``report`` receives progress lines, and ``show``
+    (when given) each part's table as soon as that part is measured: the
+    full bench takes minutes."""
+    show = show or (lambda text: None)
     scene_path = Path(settings.scene)
     scene_figures = headline(scene_path, settings, report)
+    this_machine = machine()
+    show("\n".join(tables.headline_lines(this_machine, scene_figures)))
     release_scenes()
     fresh = empty = None
     if settings.fresh_processes:
         report("fresh processes (warm and empty kernel cache) ...")
         fresh = fresh_process_render(scene_path, settings.defines, False)
         empty = fresh_process_render(scene_path, settings.defines, True)
+        show("\n".join(tables.fresh_process_lines(fresh, empty)))
     report("peak memory in child processes ...")
     memory = {str(res): child_peak_memory(scene_path, settings.defines,
                                           dict(settings.scene_settings, res=res))
               for res in settings.memory_resolutions}
+    show("\n".join(tables.memory_lines(memory)))
     report("scaling ...")
     scaling = scaling_table(scene_path, settings.defines, settings.scene_settings,
                             {"res": settings.resolutions, "max_depth": settings.depths,
                              "aa_max_depth": settings.aa_depths}, settings.repeats)
+    show("\n".join(tables.scaling_lines(scaling)))
     report("equal error against path ...")
     equal_error = equal_error_speedup(*settings.equal_error, settings.equal_error_rounds)
+    show("\n".join(tables.equal_error_lines(equal_error)))
     gradient = gradients.measure(
         scene_path, settings.defines, settings.scene_settings, settings.repeats,
         settings.memory_resolutions[0], settings.gradient, report,
         indirect=scene_figures.indirect_samples > 0)
-    return BenchResults(machine(), scene_figures, fresh, empty, memory, scaling, equal_error,
-                        gradient)
+    show("\n".join(gradients.format_lines(gradient)))
+    return BenchResults(this_machine, scene_figures, fresh, empty, memory, scaling,
+                        equal_error, gradient)

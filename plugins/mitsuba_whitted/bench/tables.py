@@ -1,4 +1,5 @@
-"""The benchmark's figures as a plain-text table."""
+"""The benchmark's figures as a plain-text table, a part at a time: the
+bench prints each part as soon as it is measured."""
 
 from __future__ import annotations
 
@@ -6,7 +7,8 @@ from ..compare.intervals import Estimate, estimate_text, verdict_text
 from ..compare.metrics import METRIC_NAMES
 from . import gradients
 from .bound import CASTS, Bound, LaunchSplit
-from .suite import BenchResults
+from .results import BenchResults, Headline
+from .timing import ScalingRow
 
 
 def _mode(coherent: bool) -> str:
@@ -60,47 +62,65 @@ def _bound_lines(bound: Bound, split: LaunchSplit) -> list:
     ]
 
 
-def format_table(results: BenchResults) -> str:
-    """The benchmark as a plain-text table."""
-    scene = results.headline
+def headline_lines(machine: str, scene: Headline) -> list:
+    """The scene's renders, rays and ray-casting bound."""
     width, height = scene.resolution
-    lines = [
-        f"machine: {results.machine}",
+    return [
+        f"machine: {machine}",
         f"scene {scene.scene} at {width}x{height} {scene.defines}",
         f"  warm render (median)        {estimate_text(scene.timing.warm, ' s', 3)}",
         f"  first render in process     {scene.timing.first:8.3f} s"
         f"  (second {scene.timing.second:.3f} s)",
-    ]
-    if results.fresh_process is not None:
-        fresh, empty = results.fresh_process, results.fresh_process_empty_cache
-        lines += [
-            f"  whole render process        {fresh['process_seconds']:8.3f} s  "
-            f"(render {fresh['render_seconds']:.3f} s, kernel cache warm; the scene as "
-            "`mitsuba-whitted render` renders it)",
-            f"  same, empty kernel cache    {empty['process_seconds']:8.3f} s  "
-            f"(render {empty['render_seconds']:.3f} s)",
-        ]
-    lines += [
         "  rays: " + ", ".join(f"{k} {v:,}" for k, v in scene.rays.items()),
         f"  rays/s                      {scene.rays_per_second / 1e6:8.2f} M",
         *(_bound_lines(scene.bound, scene.split) if scene.bound is not None
           else [f"  bound: not measured: {scene.not_measured['bound']}"]),
-        "  peak RSS by film width: " + ", ".join(f"{res} px {mib:,.0f} MiB"
-                                               for res, mib in results.peak_rss_mib.items()),
-        "  scaling (warm):",
     ]
-    for row in results.scaling:
-        lines.append(f"    {row.parameter:>12} = {str(row.value):>5}  "
-                     f"{estimate_text(row.seconds, ' s', 3)}"
-                     f"  {row.rays:>12,} rays  {row.rays_per_second / 1e6:6.2f} M rays/s")
-    eq = results.equal_error
-    lines.append(f"  equal-error speed-up over path on {eq['scene']} at {eq['resolution']}^2 "
-                 f"(reference {eq['reference_spp']} spp, its own noise relMSE "
-                 f"{eq['reference_noise_rel_mse']:.1e}; {eq['rounds']} rounds):")
-    lines += [f"    {row['whitted']:<46} {_seconds(row['whitted_seconds'])}"
-              + "".join(_gain_text(row, metric) for metric in row["speedup"])
-              for row in eq["settings"]]
-    lines.append(f"  headline: {eq['whitted']}, "
-                 + ", ".join(f"{METRIC_NAMES[m]} {verdict_text(Estimate.from_json(s))}"
-                             for m, s in eq["speedup"].items()))
-    return "\n".join(lines + gradients.format_lines(results.gradient))
+
+
+def fresh_process_lines(fresh: dict, empty: dict) -> list:
+    """A whole render process, with the kernel cache warm and empty."""
+    return [
+        f"  whole render process        {fresh['process_seconds']:8.3f} s  "
+        f"(render {fresh['render_seconds']:.3f} s, kernel cache warm; the scene as "
+        "`mitsuba-whitted render` renders it)",
+        f"  same, empty kernel cache    {empty['process_seconds']:8.3f} s  "
+        f"(render {empty['render_seconds']:.3f} s)",
+    ]
+
+
+def memory_lines(peak_rss_mib: dict) -> list:
+    return ["  peak RSS by film width: " + ", ".join(f"{res} px {mib:,.0f} MiB"
+                                                 for res, mib in peak_rss_mib.items())]
+
+
+def scaling_lines(rows: list[ScalingRow]) -> list:
+    return ["  scaling (warm):"] + [
+        f"    {row.parameter:>12} = {str(row.value):>5}  {estimate_text(row.seconds, ' s', 3)}"
+        f"  {row.rays:>12,} rays  {row.rays_per_second / 1e6:6.2f} M rays/s" for row in rows]
+
+
+def equal_error_lines(eq: dict) -> list:
+    """Whitted's settings against path at equal error, and the headline."""
+    return [
+        f"  equal-error speed-up over path on {eq['scene']} at {eq['resolution']}^2 "
+        f"(reference {eq['reference_spp']} spp, its own noise relMSE "
+        f"{eq['reference_noise_rel_mse']:.1e}; {eq['rounds']} rounds):",
+        *(f"    {row['whitted']:<46} {_seconds(row['whitted_seconds'])}"
+          + "".join(_gain_text(row, metric) for metric in row["speedup"])
+          for row in eq["settings"]),
+        f"  headline: {eq['whitted']}, "
+        + ", ".join(f"{METRIC_NAMES[m]} {verdict_text(Estimate.from_json(s))}"
+                    for m, s in eq["speedup"].items()),
+    ]
+
+
+def format_table(results: BenchResults) -> str:
+    """The benchmark as a plain-text table, in the order the bench
+    measures (and prints) its parts."""
+    fresh = ([] if results.fresh_process is None
+             else fresh_process_lines(results.fresh_process, results.fresh_process_empty_cache))
+    return "\n".join(headline_lines(results.machine, results.headline) + fresh
+                     + memory_lines(results.peak_rss_mib) + scaling_lines(results.scaling)
+                     + equal_error_lines(results.equal_error)
+                     + gradients.format_lines(results.gradient))
