@@ -25,7 +25,7 @@ from mitsuba_whitted.compare import (PATH_SAMPLERS, CompareOptions, ReferenceCac
                                      write_scene_report)
 from mitsuba_whitted.compare.equal_error import time_estimates
 from mitsuba_whitted.compare.report import MarkdownReport, number
-from mitsuba_whitted.compare.intervals import Estimate, verdict_text
+from mitsuba_whitted.compare.intervals import verdict_text
 from mitsuba_whitted.compare.scene_report import (levels_sentence, levels_table,
                                                   speedup_sentence, split_sentence,
                                                   timing_sentence, verdict_sentences,
@@ -255,11 +255,10 @@ def goal_table(report: MarkdownReport, comparisons: list) -> None:
     report.paragraph(levels_sentence())
     rows = []
     for result in comparisons:
-        summary = result.results["levels"]["summary"]
-        least = summary["least_speedup"]
-        rows.append([result.results["scene"], summary["levels"], summary["faster"],
-                     summary["met"], "-" if least is None
-                     else verdict_text(Estimate.from_json(least))])
+        summary = result.results.levels.summary
+        least = summary.least_speedup
+        rows.append([result.results.scene, summary.levels, summary.faster, summary.met,
+                     "-" if least is None else verdict_text(least)])
     report.table(["scene", "levels", "faster at", "goal met at", "least speed-up"], rows)
 
 

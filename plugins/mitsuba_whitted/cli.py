@@ -119,8 +119,7 @@ def command_compare(args) -> int:
     from pathlib import Path
 
     import mitsuba_whitted
-    from .compare import (CompareOptions, Estimate, check_report_folder, compare_scene,
-                          estimate_text)
+    from .compare import CompareOptions, check_report_folder, compare_scene, estimate_text
     from .distributed import backend
 
     options = CompareOptions.make(args.quick, args.reference_spp)
@@ -129,12 +128,11 @@ def command_compare(args) -> int:
     with backend(args.workers, args.cluster) as runner:
         result = compare_scene(args.scene, out, options, _parse_defines(args.define),
                                progress=Progress(), backend=runner)
-    crossing = result.results["crossing"]["relmse"]
-    seconds = Estimate.from_json(crossing["path_seconds"])
+    crossing = result.results.crossing["relmse"]
     print(f"{result.report}: reference {result.reference.spp} spp"
           f"{' (cached)' if result.reference.cached else ''}; path overtakes the most "
-          f"accurate Whitted setting in relMSE ({crossing['label']}) at "
-          f"{estimate_text(seconds, ' s')}")
+          f"accurate Whitted setting in relMSE ({crossing.label}) at "
+          f"{estimate_text(crossing.path_seconds, ' s')}")
     return 0
 
 

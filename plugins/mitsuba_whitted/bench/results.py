@@ -3,9 +3,9 @@
 
 from __future__ import annotations
 
-import math
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
+from ..compare.intervals import json_data
 from .bound import Bound, LaunchSplit
 from .timing import RenderTiming, ScalingRow
 
@@ -45,8 +45,5 @@ class BenchResults:
 
 
 def results_json(results: BenchResults) -> dict:
-    """The figures as JSON data: the dataclasses as dictionaries, an
-    infinite bound of an interval as ``None`` (JSON has no infinity)."""
-    return asdict(results, dict_factory=lambda items: {
-        name: None if isinstance(value, float) and math.isinf(value) else value
-        for name, value in items})
+    """The figures as JSON data (an infinite bound of an interval ``None``)."""
+    return json_data(results)
