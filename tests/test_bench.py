@@ -18,37 +18,39 @@ def test_bench_quick_writes_every_figure(tmp_path):
     result = cli("bench", "--quick", "--json", str(out))
     assert result.returncode == 0, result.stderr
     figures = json.loads(out.read_text())
-    for key in ("machine", "warm_render_s", "first_render_in_process_s", "second_render_in_process_s",
-                "rays", "rays_per_second", "bound", "fresh_process", "fresh_process_empty_cache", "peak_rss_mib",
-                "scaling", "equal_error", "gradient"):
+    for key in ("machine", "headline", "fresh_process", "fresh_process_empty_cache",
+                "peak_rss_mib", "scaling", "equal_error", "gradient"):
         assert key in figures, key
-    rays = figures["rays"]
+    scene = figures["headline"]
+    for key in ("timing", "rays", "rays_per_second", "bound", "split"):
+        assert key in scene, key
+    rays = scene["rays"]
     assert rays["total"] == sum(rays[k] for k in ("camera", "reflection", "refraction",
                                                     "passthrough", "shadow", "shadow_march"))
-    bound = figures["bound"]
-    assert bound["ray_intersect_rays"] == (rays["camera"] + rays["reflection"]
-                                           + rays["refraction"] + rays["passthrough"])
+    bound = scene["bound"]
+    assert bound["rays"]["ray_intersect"] == (rays["camera"] + rays["reflection"]
+                                              + rays["refraction"] + rays["passthrough"])
     # The bound casts the render's own rays, the shadow rays and the
     # queries that march blocked ones through the tinted glass among them.
-    assert (bound["ray_test_rays"], bound["shadow_march_rays"]) == (rays["shadow"],
-                                                                    rays["shadow_march"])
+    assert (bound["rays"]["ray_test"], bound["rays"]["shadow_march"]) == (rays["shadow"],
+                                                                          rays["shadow_march"])
     assert rays["shadow_march"] > 0
     assert 0 < bound["ratio"] == statistics.median(bound["ratios"])
-    assert bound["render_s"] > 0 and len(bound["ratios"]) >= 2
+    assert bound["render_seconds"] > 0 and len(bound["ratios"]) >= 2
     for cast in ("ray_intersect", "ray_test", "shadow_march"):
-        assert bound[f"{cast}_s"] > 0 and isinstance(bound[f"{cast}_coherent"], bool)
-    assert bound["seconds"] == sum(bound[f"{cast}_s"] for cast in
+        assert bound["seconds_by_cast"][cast] > 0 and isinstance(bound["coherent"][cast], bool)
+    assert bound["seconds"] == sum(bound["seconds_by_cast"][cast] for cast in
                                    ("ray_intersect", "ray_test", "shadow_march"))
-    split = figures["split"]
-    assert split["first_launch_samples"] == 4 * 96 * 96  # the first adaptive level
-    assert split["launches"] >= 2 and split["frozen_call_s"] > 0
-    for part in ("first_launch", "rest"):
-        assert split[f"{part}_s"] > 0 and split[f"{part}_bound_s"] > 0
-        assert split[f"{part}_ratio"] > 0
+    split = scene["split"]
+    assert split["first_samples"] == 4 * 96 * 96  # the first adaptive level
+    assert split["launches"] >= 2 and split["frozen_call_seconds"] > 0
+    for part in ("first", "rest"):
+        assert split[f"{part}_seconds"] > 0 and split[f"{part}_bound"] > 0
+        assert split[f"{part}_ratio"] == statistics.median(split[f"{part}_ratios"]) > 0
     assert {row["parameter"] for row in figures["scaling"]} == {"res", "max_depth", "aa_max_depth"}
     assert all(row["seconds"]["median"] > 0 for row in figures["scaling"])
     assert all(mib > 0 for mib in figures["peak_rss_mib"].values())
-    warm = figures["warm_render_s"]
+    warm = scene["timing"]["warm"]
     assert 0 < warm["low"] <= warm["median"] <= warm["high"]
     equal_error = figures["equal_error"]
     assert equal_error["whitted"] == HEADLINE and len(equal_error["settings"]) > 1
@@ -104,8 +106,8 @@ def test_bench_sweeps_a_scene_that_declares_no_parameters():
     settings = replace(BenchSettings.quick(ROOT / "scenes" / "cases" / "mirror_chain.xml"),
                        fresh_processes=False)
     figures = run(settings, report=lambda line: None)
-    assert figures["resolution"] == [96, 96]
-    rays = {(row["parameter"], row["value"]): row["rays"] for row in figures["scaling"]}
+    assert figures.headline.resolution == [96, 96]
+    rays = {(row.parameter, row.value): row.rays for row in figures.scaling}
     # Four times the pixels, about four times the rays; deeper trees, more rays.
     assert 3.5 < rays["res", 128] / rays["res", 64] < 4.5
     assert rays["max_depth", 6] > rays["max_depth", 2]
@@ -162,8 +164,8 @@ def test_a_scene_with_indirect_paths_counts_their_rays_and_says_what_is_not_meas
     from mitsuba_whitted.bench.suite import INDIRECT_UNCAPTURED, headline
     from validation.scenes import GLASS_BOX
     figures = headline(GLASS_BOX, BenchSettings.quick(GLASS_BOX), report=lambda line: None)
-    assert figures["indirect_samples"] == 4
-    assert figures["bound"] is None and figures["split"] is None
-    assert figures["not_measured"] == {"bound": INDIRECT_UNCAPTURED}
-    rays = figures["rays"]
+    assert figures.indirect_samples == 4
+    assert figures.bound is None and figures.split is None
+    assert figures.not_measured == {"bound": INDIRECT_UNCAPTURED}
+    rays = figures.rays
     assert rays["indirect"] > rays["camera"] and rays["indirect_shadow"] > 0

@@ -15,7 +15,7 @@ import pytest
 
 from mitsuba_whitted.compare import (ReferenceCache, cache_key, cached_reference, flip_error,
                                      luminance, missing_energy_share, noise_rel_mse, rel_mse,
-                                     rmse, scene_digest)
+                                     rmse)
 from mitsuba_whitted.compare.converged import converged_renders
 from mitsuba_whitted.compare.levels import error_levels
 from mitsuba_whitted.compare.reference import render_reference
@@ -24,6 +24,7 @@ from mitsuba_whitted.compare.report import number
 from mitsuba_whitted.compare.scene_report import (FOLDER_MARK, CompareError, CompareOptions,
                                                   check_report_folder, compare_scene)
 from mitsuba_whitted.imageio import read_image
+from mitsuba_whitted.scene_digest import scene_digest
 
 from conftest import assert_finite, cli, one_line
 from validation.scenes import REPORT_SCENE, glass_scene

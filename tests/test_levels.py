@@ -11,10 +11,11 @@ import numpy as np
 import pytest
 
 from mitsuba_whitted.compare import Setting, Sweep, SweepPoint
-from mitsuba_whitted.compare.intervals import Draws, tile_pixels
+from mitsuba_whitted.compare.intervals import Draws, json_data, tile_pixels
 from mitsuba_whitted.compare.levels import (GOAL, NOISE_MULTIPLE, TOP_LEVEL, analyse_levels,
                                             error_levels, family_curves, goal_summary)
 from mitsuba_whitted.compare.metrics import TILE_SIDES
+from mitsuba_whitted.compare.results import LevelEntry
 
 SIZE = (16, 16)
 SPP = (1, 2, 4, 8, 16, 32, 64)
@@ -73,7 +74,7 @@ def test_a_ladder_four_times_cheaper_is_four_times_faster_at_every_level():
         assert level.speedup.low == pytest.approx(4) and level.verdict == "faster"
         assert level.goal == "met"
         assert level.paths == pytest.approx(PATH_ERROR / level.error)
-    assert goal_summary(levels)["met_at_every_level"]
+    assert goal_summary(levels).met_at_every_level
 
 
 def test_a_setting_reaches_a_level_at_its_own_time_when_it_is_below_it():
@@ -98,8 +99,8 @@ def test_a_level_below_every_models_bias_is_out_of_reach():
         assert level.setting is None and level.whitted.relation == ">"
         assert math.isinf(level.whitted.median)
         assert level.speedup.high == 0 and level.verdict == "slower" and level.goal == "missed"
-        assert level.to_json()["whitted"]["seconds"]["median"] is None
-    assert not goal_summary(levels)["met_at_every_level"]
+        assert json_data(LevelEntry.of(level))["whitted"]["seconds"]["median"] is None
+    assert not goal_summary(levels).met_at_every_level
 
 
 def test_a_level_above_a_models_bias_takes_more_than_the_setting():

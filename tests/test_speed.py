@@ -7,9 +7,10 @@ timings."""
 
 import json
 
-from mitsuba_whitted.compare import (Estimate, ReferenceCache, Setting, analyse, load_scene,
+from mitsuba_whitted.compare import (ReferenceCache, Setting, analyse, load_scene,
                                      path_ladder, path_settings, render_reference, run_sweep,
                                      verdict, verdict_text)
+from mitsuba_whitted.compare.intervals import json_data
 from mitsuba_whitted.compare.report import MarkdownReport
 from mitsuba_whitted.compare.sweep import sampler_sensors
 from validation.run import SpeedSettings, measure_speed, write_speed_section
@@ -19,12 +20,12 @@ from validation.scenes import SPEED
 def _speedups(comparison) -> dict:
     """Every Whitted setting's speed-up in every metric, by (label, metric),
     and the family's at every error level, by level."""
-    speedups = {(label, metric): Estimate.from_json(entry["speedup"][metric])
-                for label, entry in comparison.results["whitted"].items()
-                for metric in comparison.results["metrics"]}
-    speedups.update({("level", entry["error"]): Estimate.from_json(entry["speedup"])
-                     for entry in comparison.results["levels"]["entries"]
-                     if entry["speedup"] is not None})
+    speedups = {(label, metric): entry.speedup[metric]
+                for label, entry in comparison.results.whitted.items()
+                for metric in comparison.results.metrics}
+    speedups.update({("level", entry.error): entry.speedup
+                     for entry in comparison.results.levels.entries
+                     if entry.speedup is not None})
     return speedups
 
 
@@ -53,7 +54,7 @@ def _check_written_section(folder, comparison):
     scene_folder = folder / "speed" / comparison.name
     assert comparison.report == scene_folder / "report.md" and comparison.report.is_file()
     written = json.loads((scene_folder / "results.json").read_text())
-    assert written == json.loads(json.dumps(comparison.results))
+    assert written == json.loads(json.dumps(json_data(comparison.results)))
     assert f"(speed/{comparison.name}/report.md)" in text and "3.0 The goal" in text
     assert (scene_folder / "images" / "speed_vs_error.png").is_file()
 

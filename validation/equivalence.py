@@ -23,8 +23,8 @@ import numpy as np
 from mitsuba_whitted import load_file
 from mitsuba_whitted.camera import camera_rays, pixel_centres
 from mitsuba_whitted.compare import (EquivalenceResult, ReferenceCache, cache_key,
-                                     equivalence_test, path_batches, scene_digest,
-                                     whitted_batches)
+                                     equivalence_test, path_batches, whitted_batches)
+from mitsuba_whitted.scene_digest import scene_without_integrator_digest
 from validation.scenes import (GLASS_BOX, backdrop, builtin_cylinder, camera, diffuse, floor,
                                point_light, rgb, scene, sky, sphere, wall)
 
@@ -200,9 +200,10 @@ def load_case_scene(description: dict | Path) -> mi.Scene:
 
 def _cache_description(description: dict | Path):
     """What identifies a case's scene in a cache key: the description, or
-    the digest of the scene file and the files it names."""
+    the digest of the scene file without its integrator (path's own
+    settings replace it) and the files it names."""
     if isinstance(description, Path):
-        return scene_digest(description, {"res": str(SIZE)})
+        return scene_without_integrator_digest(description, {"res": str(SIZE)})
     return description
 
 

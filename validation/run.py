@@ -25,7 +25,7 @@ from mitsuba_whitted.compare import (PATH_SAMPLERS, CompareOptions, ReferenceCac
                                      write_scene_report)
 from mitsuba_whitted.compare.equal_error import time_estimates
 from mitsuba_whitted.compare.report import MarkdownReport, number
-from mitsuba_whitted.compare.intervals import Estimate, verdict_text
+from mitsuba_whitted.compare.intervals import verdict_text
 from mitsuba_whitted.compare.scene_report import (levels_sentence, levels_table,
                                                   speedup_sentence, split_sentence,
                                                   timing_sentence, verdict_sentences,
@@ -34,6 +34,7 @@ from mitsuba_whitted.files import replaced_folder
 from mitsuba_whitted.system import machine
 from mitsuba_whitted.distributed import SceneSource, backend
 from mitsuba_whitted.progress import Progress
+from mitsuba_whitted.scene_digest import scene_without_integrator_digest
 from validation import reference_errors
 from validation.equivalence import (ALPHA, BLEND_DIFFUSE, BLEND_WEIGHT, blend_scene,
                                     equivalence_cases, equivalence_path, equivalence_rays,
@@ -145,7 +146,8 @@ def report_scene_section(report: MarkdownReport, cache: ReferenceCache, backend)
     defines = {"res": str(SCENE_RES)}
     scene = mitsuba_whitted.load_file(REPORT_SCENE, **defines)
     source = SceneSource(REPORT_SCENE, defines, scene)
-    key = cache_key(kind="report scene", scene=source.digest,
+    key = cache_key(kind="report scene",
+                    scene=scene_without_integrator_digest(REPORT_SCENE, defines),
                     spp=SCENE_SPP, passes=16, integrator={"type": "path", "max_depth": 32})
     reference = cached_reference(cache, key, source, SCENE_SPP, progress=Progress(),
                                  backend=backend)
@@ -253,11 +255,10 @@ def goal_table(report: MarkdownReport, comparisons: list) -> None:
     report.paragraph(levels_sentence())
     rows = []
     for result in comparisons:
-        summary = result.results["levels"]["summary"]
-        least = summary["least_speedup"]
-        rows.append([result.results["scene"], summary["levels"], summary["faster"],
-                     summary["met"], "-" if least is None
-                     else verdict_text(Estimate.from_json(least))])
+        summary = result.results.levels.summary
+        least = summary.least_speedup
+        rows.append([result.results.scene, summary.levels, summary.faster, summary.met,
+                     "-" if least is None else verdict_text(least)])
     report.table(["scene", "levels", "faster at", "goal met at", "least speed-up"], rows)
 
 

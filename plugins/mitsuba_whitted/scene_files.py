@@ -67,12 +67,12 @@ def files_read(path: str | Path, defines: dict) -> list[Path]:
     counted where both exist."""
     state = parse(path, defines)
     found = {Path(str(name)) for name in state.files}
-    for _, candidates in _named_files(state, path):
+    for _, candidates in nodes_naming_files(state, path):
         found.update(candidates)
     return sorted({Path(os.path.realpath(file)) for file in found})
 
 
-def _named_files(state, path: str | Path):
+def nodes_naming_files(state, path: str | Path):
     """Each node of a parsed scene that names a file (its ``filename``),
     with the existing files the name may refer to, in the order Mitsuba
     looks for them."""
@@ -88,7 +88,7 @@ def check_images(state, path: str | Path) -> None:
     reads (a ``bitmap``'s, an ``envmap``'s) whose header declares more
     pixels than the memory available holds, or than the file can hold
     (:func:`.imageio.image_refusal`), before Mitsuba allocates them."""
-    for node, candidates in _named_files(state, path):
+    for node, candidates in nodes_naming_files(state, path):
         refusal = image_refusal(candidates[0]) if candidates else None
         if refusal:
             raise ParameterError(node.props.plugin_name(), "filename",

@@ -17,10 +17,13 @@ kernel cache as it is and once with an empty one.
 - :mod:`.gradient_figures`: the time and memory of a gradient, and its error
   against ``prb``'s at equal time;
 - :mod:`.suite`: the settings and the run of all of them;
+- :mod:`.results`: the figures as dataclasses, and their JSON;
 - :mod:`.tables`: the figures as a table.
 """
 
+from .results import BenchResults, results_json
 from .suite import DEFAULT_SCENE, BenchSettings, run
 from .tables import format_table
 
-__all__ = ["DEFAULT_SCENE", "BenchSettings", "format_table", "run"]
+__all__ = ["DEFAULT_SCENE", "BenchResults", "BenchSettings", "format_table", "results_json",
+           "run"]

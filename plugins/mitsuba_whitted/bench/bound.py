@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import statistics
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import drjit as dr
 import mitsuba as mi
@@ -88,14 +88,14 @@ class Bound:
     render_seconds: float
     #: Sum of the casts over the render, of each round.
     ratios: list
+    #: Derived: the casts' sum and the median ratio, fields so that the
+    #: bench's JSON (``dataclasses.asdict``) holds them.
+    seconds: float = field(init=False)
+    ratio: float = field(init=False)
 
-    @property
-    def seconds(self) -> float:
-        return sum(self.seconds_by_cast.values())
-
-    @property
-    def ratio(self) -> float:
-        return statistics.median(self.ratios)
+    def __post_init__(self):
+        self.seconds = sum(self.seconds_by_cast.values())
+        self.ratio = statistics.median(self.ratios)
 
 
 def _faster_mode(cast) -> bool:
@@ -193,14 +193,13 @@ class LaunchSplit:
     #: scene (Dr.Jit traverses its inputs at every call).
     launches: int
     frozen_call_seconds: float
+    #: Derived: the median ratio of each part.
+    first_ratio: float = field(init=False)
+    rest_ratio: float = field(init=False)
 
-    @property
-    def first_ratio(self) -> float:
-        return statistics.median(self.first_ratios)
-
-    @property
-    def rest_ratio(self) -> float:
-        return statistics.median(self.rest_ratios)
+    def __post_init__(self):
+        self.first_ratio = statistics.median(self.first_ratios)
+        self.rest_ratio = statistics.median(self.rest_ratios)
 
 
 class _FirstLaunchClock:

@@ -11,8 +11,9 @@ from ..errors import UsageError
 from ..integrators.settings import is_whitted
 from ..overrides import load_with
 from ..system import machine
-from .bound import CASTS, launch_split, ray_casting_bound
-from . import gradient_figures
+from . import gradient_figures, tables
+from .bound import Bound, LaunchSplit, launch_split, ray_casting_bound
+from .results import BenchResults, Headline
 from .equal_error import equal_error_speedup
 from .processes import child_peak_memory, fresh_process_render, peak_rss_mib
 from ..jit import release_scenes
@@ -40,14 +41,17 @@ class BenchSettings:
     memory_resolutions: tuple = (600, 2048)
     fresh_processes: bool = True
     #: Equal-error scene: resolution, reference spp, largest path spp. The
-    #: reference's own noise (which the bench reports) must stay below
+    #: reference's own noise (which the bench reports) must stay well below
     #: every error compared, and path's ladder must reach past Whitted's
-    #: best settings.
-    equal_error: tuple = (128, 65536, 16384)
+    #: best settings. relMSE is a mean over pixels, so a smaller film
+    #: leaves the errors compared as they are (its edge pixels, where
+    #: Whitted's error lies, weigh a little more) and costs path a quarter
+    #: of the time per halving of its side.
+    equal_error: tuple = (64, 65536, 8192)
     #: Timing rounds of the equal-error sweep: each times path's two
     #: ladders up to the largest spp, seconds a round, so fewer than
     #: ``repeats``.
-    equal_error_rounds: int = 5
+    equal_error_rounds: int = 3
     #: Gradients at equal error: resolution, largest prb spp, prb seeds.
     gradient: tuple = (64, 1024, 8)
 
@@ -66,7 +70,7 @@ class BenchSettings:
         return {} if self.resolution is None else {"res": self.resolution}
 
 
-def headline(scene_path: Path, settings: BenchSettings, report) -> dict:
+def headline(scene_path: Path, settings: BenchSettings, report) -> Headline:
     """Warm and first renders, rays by kind and the ray-casting bound of
     ``scene_path``; the scene is released when this returns."""
     scene = load_with(scene_path, settings.defines, settings.scene_settings)
@@ -75,24 +79,15 @@ def headline(scene_path: Path, settings: BenchSettings, report) -> dict:
         raise UsageError("the scene's integrator is not 'whitted'.", "mitsuba-whitted bench")
     report("timing warm renders ...")
     timing = time_render(scene, integrator, settings.repeats)
-    casting = ({"bound": None, "split": None, "not_measured": {"bound": INDIRECT_UNCAPTURED}}
-               if integrator.indirect_samples else ray_casting(scene, integrator, settings, report))
-    return {
-        "scene": str(scene_path), "defines": settings.defines,
-        "settings": settings.scene_settings,
-        "resolution": list(scene.sensors()[0].film().crop_size()),
-        "indirect_samples": integrator.indirect_samples,
-        "first_render_in_process_s": timing.first,
-        "second_render_in_process_s": timing.second,
-        "warm_render_s": timing.warm.to_json(),
-        "warm_renders_s": timing.warm_all,
-        "rays": {k: timing.stats[k] for k in RAY_KINDS + (INDIRECT_KINDS
-                                                          if integrator.indirect_samples else ())},
-        "rays_per_second": timing.stats["total"] / timing.warm.median,
-        "aa_samples": timing.stats["aa_samples"],
-        **casting,
-        "peak_rss_mib_this_process": peak_rss_mib(),
-    }
+    bound, split, not_measured = ((None, None, {"bound": INDIRECT_UNCAPTURED})
+                                  if integrator.indirect_samples
+                                  else (*ray_casting(scene, integrator, settings, report), {}))
+    kinds = RAY_KINDS + (INDIRECT_KINDS if integrator.indirect_samples else ())
+    return Headline(str(scene_path), settings.defines, settings.scene_settings,
+                    list(scene.sensors()[0].film().crop_size()), integrator.indirect_samples,
+                    timing, {kind: timing.stats[kind] for kind in kinds},
+                    timing.stats["total"] / timing.warm.median, bound, split, not_measured,
+                    peak_rss_mib())
 
 
 #: The rays a render counts, by kind, and those of its indirect paths.
@@ -105,7 +100,8 @@ INDIRECT_UNCAPTURED = ("the indirect paths cast their rays inside their own loop
                        "would leave most of the work out")
 
 
-def ray_casting(scene: mi.Scene, integrator, settings: BenchSettings, report) -> dict:
+def ray_casting(scene: mi.Scene, integrator, settings: BenchSettings,
+                report) -> tuple[Bound, LaunchSplit]:
     """The render's own rays cast through Mitsuba's ray casting: the bound
     on the whole render, and on its first launch and the rest apart."""
     report("casting the render's own rays through Mitsuba's ray casting ...")
@@ -120,49 +116,45 @@ def ray_casting(scene: mi.Scene, integrator, settings: BenchSettings, report) ->
     split = launch_split(scene, integrator, captured, first_samples, bound.coherent,
                          settings.bound_rounds)
     del captured
-    return {
-        "bound": {**{f"{name}_{figure}": values[name] for name in CASTS
-                     for figure, values in (("rays", bound.rays), ("s", bound.seconds_by_cast),
-                                            ("coherent", bound.coherent))},
-                  "seconds": bound.seconds, "render_s": bound.render_seconds,
-                  "ratio": bound.ratio, "ratios": bound.ratios},
-        "split": {"first_launch_samples": split.first_samples,
-                  "first_launch_s": split.first_seconds, "first_launch_bound_s": split.first_bound,
-                  "first_launch_ratio": split.first_ratio,
-                  "rest_s": split.rest_seconds, "rest_bound_s": split.rest_bound,
-                  "rest_ratio": split.rest_ratio,
-                  "launches": split.launches, "frozen_call_s": split.frozen_call_seconds},
-    }
+    return bound, split
 
 
-def run(settings: BenchSettings, report=print) -> dict:
-    """All measurements; ``report`` receives progress lines."""
+def run(settings: BenchSettings, report=print, show=None) -> BenchResults:
+    """All measurements; ``report`` receives progress lines, and ``show``
+    (when given) each part's table as soon as that part is measured: the
+    full bench takes minutes."""
+    show = show or (lambda text: None)
     scene_path = Path(settings.scene)
-    results = {"machine": machine(), **headline(scene_path, settings, report)}
+    scene_figures = headline(scene_path, settings, report)
+    this_machine = machine()
+    show("\n".join(tables.headline_lines(this_machine, scene_figures)))
     release_scenes()
+    fresh = empty = None
     if settings.fresh_processes:
         report("fresh processes (warm and empty kernel cache) ...")
-        results["fresh_process"] = fresh_process_render(scene_path, settings.defines, False)
-        results["fresh_process_empty_cache"] = fresh_process_render(scene_path, settings.defines, True)
+        fresh = fresh_process_render(scene_path, settings.defines, False)
+        empty = fresh_process_render(scene_path, settings.defines, True)
+        show("\n".join(tables.fresh_process_lines(fresh, empty)))
     report("peak memory in child processes ...")
-    results["peak_rss_mib"] = {
-        str(res): child_peak_memory(scene_path, settings.defines,
-                                    dict(settings.scene_settings, res=res))
-        for res in settings.memory_resolutions}
+    memory = {str(res): child_peak_memory(scene_path, settings.defines,
+                                          dict(settings.scene_settings, res=res))
+              for res in settings.memory_resolutions}
+    show("\n".join(tables.memory_lines(memory)))
     report("scaling ...")
-    rows = scaling_table(scene_path, settings.defines, settings.scene_settings,
-                         {"res": settings.resolutions, "max_depth": settings.depths,
-                          "aa_max_depth": settings.aa_depths}, settings.repeats)
-    results["scaling"] = [{"parameter": r.parameter, "value": r.value,
-                           "seconds": r.seconds.to_json(),
-                           "rays": r.rays, "rays_per_second": r.rays_per_second} for r in rows]
+    scaling = scaling_table(scene_path, settings.defines, settings.scene_settings,
+                            {"res": settings.resolutions, "max_depth": settings.depths,
+                             "aa_max_depth": settings.aa_depths}, settings.repeats)
+    show("\n".join(tables.scaling_lines(scaling)))
     report("equal error against path ...")
     progress = Progress()
-    results["equal_error"] = equal_error_speedup(*settings.equal_error,
-                                                 settings.equal_error_rounds, progress)
+    equal_error = equal_error_speedup(*settings.equal_error, settings.equal_error_rounds,
+                                      progress)
     progress.finish()
-    results["gradient"] = gradient_figures.measure_gradients(
+    show("\n".join(tables.equal_error_lines(equal_error)))
+    gradient = gradient_figures.measure_gradients(
         scene_path, settings.defines, settings.scene_settings, settings.repeats,
         settings.memory_resolutions[0], settings.gradient, report,
-        indirect=results["indirect_samples"] > 0)
-    return results
+        indirect=scene_figures.indirect_samples > 0)
+    show("\n".join(gradient_figures.format_lines(gradient)))
+    return BenchResults(this_machine, scene_figures, fresh, empty, memory, scaling,
+                        equal_error, gradient)

@@ -1,11 +1,14 @@
-"""The benchmark's figures as a plain-text table."""
+"""The benchmark's figures as a plain-text table, a part at a time: the
+bench prints each part as soon as it is measured."""
 
 from __future__ import annotations
 
 from ..compare.intervals import Estimate, estimate_text, verdict_text
 from ..compare.metrics import METRIC_NAMES
 from . import gradient_figures
-from .bound import CASTS
+from .bound import CASTS, Bound, LaunchSplit
+from .results import BenchResults, Headline
+from .timing import ScalingRow
 
 
 def _mode(coherent: bool) -> str:
@@ -16,19 +19,19 @@ def _count(number: int, one: str, many: str) -> str:
     return f"{number} {one if number == 1 else many}"
 
 
-def _split_lines(split: dict) -> list:
-    more = split["launches"] - 1
+def _split_lines(split: LaunchSplit) -> list:
+    more = split.launches - 1
     return [
-        f"    first camera launch       {split['first_launch_s']:8.3f} s, its rays' bound "
-        f"{split['first_launch_bound_s']:.3f} s: {split['first_launch_ratio']:.2f}"
-        f"  ({split['first_launch_samples']:,} samples, from the render's start)",
-        f"    the rest                  {split['rest_s']:8.3f} s, its rays' bound "
-        f"{split['rest_bound_s']:.3f} s: {split['rest_ratio']:.2f}"
+        f"    first camera launch       {split.first_seconds:8.3f} s, its rays' bound "
+        f"{split.first_bound:.3f} s: {split.first_ratio:.2f}"
+        f"  ({split.first_samples:,} samples, from the render's start)",
+        f"    the rest                  {split.rest_seconds:8.3f} s, its rays' bound "
+        f"{split.rest_bound:.3f} s: {split.rest_ratio:.2f}"
         f"  ({_count(more, 'later launch', 'later launches')} and all the render does"
         " between and after them)",
-        f"    a frozen call's fixed cost {split['frozen_call_s'] * 1e3:7.2f} ms (Dr.Jit traverses"
-        f" the scene at every call) x {_count(split['launches'], 'launch', 'launches')} = "
-        f"{split['frozen_call_s'] * split['launches'] * 1e3:.1f} ms",
+        f"    a frozen call's fixed cost {split.frozen_call_seconds * 1e3:7.2f} ms (Dr.Jit traverses"
+        f" the scene at every call) x {_count(split.launches, 'launch', 'launches')} = "
+        f"{split.frozen_call_seconds * split.launches * 1e3:.1f} ms",
     ]
 
 
@@ -46,61 +49,78 @@ def _gain_text(row: dict, metric: str) -> str:
             f"{path['sampler']}, {verdict_text(Estimate.from_json(row['speedup'][metric]))}")
 
 
-def _bound_lines(bound: dict, split: dict) -> list:
+def _bound_lines(bound: Bound, split: LaunchSplit) -> list:
     return [
         "  bound: " + " + ".join(
-            f"{name} {bound[name + '_rays']:,} rays {bound[name + '_s']:.3f} s"
-            f" ({_mode(bound[name + '_coherent'])})" for name in CASTS)
-        + f" = {bound['seconds']:.3f} s",
-        f"  bound / actual              {bound['ratio']:8.2f}  (median of {len(bound['ratios'])}"
-        f" rounds of render and casts: {min(bound['ratios']):.2f}"
-        f" to {max(bound['ratios']):.2f}; render {bound['render_s']:.3f} s in those rounds)",
+            f"{name} {bound.rays[name]:,} rays {bound.seconds_by_cast[name]:.3f} s"
+            f" ({_mode(bound.coherent[name])})" for name in CASTS)
+        + f" = {bound.seconds:.3f} s",
+        f"  bound / actual              {bound.ratio:8.2f}  (median of {len(bound.ratios)}"
+        f" rounds of render and casts: {min(bound.ratios):.2f}"
+        f" to {max(bound.ratios):.2f}; render {bound.render_seconds:.3f} s in those rounds)",
         *_split_lines(split),
     ]
 
 
-def format_table(results: dict) -> str:
-    """The benchmark as a plain-text table."""
-    rays = results["rays"]
-    bound = results["bound"]
-    width, height = results["resolution"]
-    lines = [
-        f"machine: {results['machine']}",
-        f"scene {results['scene']} at {width}x{height} {results['defines']}",
-        f"  warm render (median)        {_seconds(results['warm_render_s'])}",
-        f"  first render in process     {results['first_render_in_process_s']:8.3f} s"
-        f"  (second {results['second_render_in_process_s']:.3f} s)",
+def headline_lines(machine: str, scene: Headline) -> list:
+    """The scene's renders, rays and ray-casting bound."""
+    width, height = scene.resolution
+    return [
+        f"machine: {machine}",
+        f"scene {scene.scene} at {width}x{height} {scene.defines}",
+        f"  warm render (median)        {estimate_text(scene.timing.warm, ' s', 3)}",
+        f"  first render in process     {scene.timing.first:8.3f} s"
+        f"  (second {scene.timing.second:.3f} s)",
+        "  rays: " + ", ".join(f"{k} {v:,}" for k, v in scene.rays.items()),
+        f"  rays/s                      {scene.rays_per_second / 1e6:8.2f} M",
+        *(_bound_lines(scene.bound, scene.split) if scene.bound is not None
+          else [f"  bound: not measured: {scene.not_measured['bound']}"]),
     ]
-    if "fresh_process" in results:
-        fresh, empty = results["fresh_process"], results["fresh_process_empty_cache"]
-        lines += [
-            f"  whole render process        {fresh['process_seconds']:8.3f} s  "
-            f"(render {fresh['render_seconds']:.3f} s, kernel cache warm; the scene as "
-            "`mitsuba-whitted render` renders it)",
-            f"  same, empty kernel cache    {empty['process_seconds']:8.3f} s  "
-            f"(render {empty['render_seconds']:.3f} s)",
-        ]
-    lines += [
-        "  rays: " + ", ".join(f"{k} {v:,}" for k, v in rays.items()),
-        f"  rays/s                      {results['rays_per_second'] / 1e6:8.2f} M",
-        *(_bound_lines(bound, results["split"]) if bound is not None
-          else [f"  bound: not measured: {results['not_measured']['bound']}"]),
-        "  peak RSS by film width: " + ", ".join(f"{res} px {mib:,.0f} MiB"
-                                               for res, mib in results["peak_rss_mib"].items()),
-        "  scaling (warm):",
+
+
+def fresh_process_lines(fresh: dict, empty: dict) -> list:
+    """A whole render process, with the kernel cache warm and empty."""
+    return [
+        f"  whole render process        {fresh['process_seconds']:8.3f} s  "
+        f"(render {fresh['render_seconds']:.3f} s, kernel cache warm; the scene as "
+        "`mitsuba-whitted render` renders it)",
+        f"  same, empty kernel cache    {empty['process_seconds']:8.3f} s  "
+        f"(render {empty['render_seconds']:.3f} s)",
     ]
-    for row in results["scaling"]:
-        lines.append(f"    {row['parameter']:>12} = {str(row['value']):>5}  "
-                     f"{_seconds(row['seconds'])}"
-                     f"  {row['rays']:>12,} rays  {row['rays_per_second'] / 1e6:6.2f} M rays/s")
-    eq = results["equal_error"]
-    lines.append(f"  equal-error speed-up over path on {eq['scene']} at {eq['resolution']}^2 "
-                 f"(reference {eq['reference_spp']} spp, its own noise relMSE "
-                 f"{eq['reference_noise_rel_mse']:.1e}; {eq['rounds']} rounds):")
-    lines += [f"    {row['whitted']:<46} {_seconds(row['whitted_seconds'])}"
-              + "".join(_gain_text(row, metric) for metric in row["speedup"])
-              for row in eq["settings"]]
-    lines.append(f"  headline: {eq['whitted']}, "
-                 + ", ".join(f"{METRIC_NAMES[m]} {verdict_text(Estimate.from_json(s))}"
-                             for m, s in eq["speedup"].items()))
-    return "\n".join(lines + gradient_figures.format_lines(results["gradient"]))
+
+
+def memory_lines(peak_rss_mib: dict) -> list:
+    return ["  peak RSS by film width: " + ", ".join(f"{res} px {mib:,.0f} MiB"
+                                                 for res, mib in peak_rss_mib.items())]
+
+
+def scaling_lines(rows: list[ScalingRow]) -> list:
+    return ["  scaling (warm):"] + [
+        f"    {row.parameter:>12} = {str(row.value):>5}  {estimate_text(row.seconds, ' s', 3)}"
+        f"  {row.rays:>12,} rays  {row.rays_per_second / 1e6:6.2f} M rays/s" for row in rows]
+
+
+def equal_error_lines(eq: dict) -> list:
+    """Whitted's settings against path at equal error, and the headline."""
+    return [
+        f"  equal-error speed-up over path on {eq['scene']} at {eq['resolution']}^2 "
+        f"(reference {eq['reference_spp']} spp, its own noise relMSE "
+        f"{eq['reference_noise_rel_mse']:.1e}; {eq['rounds']} rounds):",
+        *(f"    {row['whitted']:<46} {_seconds(row['whitted_seconds'])}"
+          + "".join(_gain_text(row, metric) for metric in row["speedup"])
+          for row in eq["settings"]),
+        f"  headline: {eq['whitted']}, "
+        + ", ".join(f"{METRIC_NAMES[m]} {verdict_text(Estimate.from_json(s))}"
+                    for m, s in eq["speedup"].items()),
+    ]
+
+
+def format_table(results: BenchResults) -> str:
+    """The benchmark as a plain-text table, in the order the bench
+    measures (and prints) its parts."""
+    fresh = ([] if results.fresh_process is None
+             else fresh_process_lines(results.fresh_process, results.fresh_process_empty_cache))
+    return "\n".join(headline_lines(results.machine, results.headline) + fresh
+                     + memory_lines(results.peak_rss_mib) + scaling_lines(results.scaling)
+                     + equal_error_lines(results.equal_error)
+                     + gradient_figures.format_lines(results.gradient))

@@ -3,7 +3,7 @@ ones, and the warm time as one setting at a time varies."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import mitsuba as mi
@@ -41,10 +41,11 @@ class ScalingRow:
     value: object
     seconds: Estimate
     rays: int
+    #: Derived, a field so that the bench's JSON holds it.
+    rays_per_second: float = field(init=False)
 
-    @property
-    def rays_per_second(self) -> float:
-        return self.rays / self.seconds.median
+    def __post_init__(self):
+        self.rays_per_second = self.rays / self.seconds.median
 
 
 def warm_timing(scene_path: Path, defines: dict, settings: dict, repeats: int) -> RenderTiming:

@@ -3,7 +3,7 @@ metrics, the per-pixel equivalence test, reference renders and their cache,
 the speed-against-error sweep with its intervals and verdicts, Whitted's
 converged renders, and the report writer."""
 
-from .cache import ReferenceCache, cache_key, scene_digest
+from .cache import ReferenceCache, cache_key
 from .equivalence import (EquivalenceResult, equivalence_test, path_batches, t_quantile,
                           whitted_batches)
 from .metrics import (error_maps, flip_error, luminance, missing_energy_share, missing_light,

@@ -1,9 +1,9 @@
 """Reference renders cached on disk under a content hash.
 
-The key covers everything the reference depends on: the scene file's bytes,
-the bytes of every file it names (textures, meshes, includes), the ``-D``
-defines, the render settings, and the Mitsuba version and variant. Editing
-any of them gives a new key; nothing else does. Entries are ``.npz`` files
+The key covers everything the reference depends on: the scene as its
+renderer sees it (:mod:`..scene_digest`), the render settings, and the
+Mitsuba version and variant. Editing any of them gives a new key; nothing
+else does. Entries are ``.npz`` files
 named by the key, written whole or not at all (``files.write_atomically``),
 so an interrupted run leaves no half entry behind.
 """
@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import re
 import warnings
 import zipfile
 from pathlib import Path
@@ -20,39 +19,6 @@ from pathlib import Path
 import numpy as np
 
 from ..files import write_atomically
-
-#: Attributes of a scene file that name other files it depends on.
-_FILE_REFERENCE = re.compile(
-    r'<string\s+name="filename"\s+value="([^"$]+)"|<include\s+filename="([^"$]+)"')
-
-
-def named_files(scene_path: Path) -> list[tuple[str, Path]]:
-    """Files a scene XML names by a fixed filename: each name as written in
-    the scene and the file it resolves to (relative to the scene)."""
-    text = Path(scene_path).read_text(errors="replace")
-    found = []
-    for match in _FILE_REFERENCE.finditer(text):
-        name = match.group(1) or match.group(2)
-        candidate = (Path(scene_path).parent / name).resolve()
-        if candidate.is_file():
-            found.append((name, candidate))
-    return found
-
-
-def referenced_files(scene_path: Path) -> list[Path]:
-    """Files a scene XML names by a fixed filename (relative to the scene)."""
-    return sorted({path for _, path in named_files(scene_path)})
-
-
-def scene_digest(scene_path: str | Path, defines: dict | None = None) -> str:
-    """SHA-256 of a scene file, the files it names and its defines."""
-    scene_path = Path(scene_path)
-    digest = hashlib.sha256(scene_path.read_bytes())
-    for path in referenced_files(scene_path):
-        digest.update(path.name.encode())
-        digest.update(path.read_bytes())
-    digest.update(json.dumps(defines or {}, sort_keys=True).encode())
-    return digest.hexdigest()
 
 
 def package_digest() -> str:

@@ -27,7 +27,7 @@ more than it holds from one process to the next.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
@@ -69,6 +69,15 @@ class Estimate:
 
 def _finite_or_none(value: float) -> float | None:
     return None if math.isinf(value) else value
+
+
+def json_data(figures) -> dict:
+    """Figures held in dataclasses (an :class:`Estimate` among them) as JSON
+    data, by ``dataclasses.asdict``: an infinite number of a dataclass is
+    ``None``, as JSON has no infinity and :meth:`Estimate.to_json` writes."""
+    return asdict(figures, dict_factory=lambda items: {
+        name: _finite_or_none(value) if isinstance(value, float) else value
+        for name, value in items})
 
 
 def verdict(speedup: Estimate) -> str:

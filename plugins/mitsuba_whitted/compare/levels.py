@@ -90,15 +90,6 @@ class Level:
             return "met"
         return "missed" if self.speedup.high < GOAL else "undecided"
 
-    def to_json(self) -> dict:
-        return {"error": self.error,
-                "path": {"seconds": self.path.to_json(), "spp": self.path_spp.to_json(),
-                         "sampler": self.sampler},
-                "whitted": {"seconds": self.whitted.to_json(), "setting": self.setting,
-                            "paths": self.paths},
-                "speedup": None if self.speedup is None else self.speedup.to_json(),
-                "verdict": self.verdict, "goal": self.goal}
-
 
 @dataclass(frozen=True)
 class FamilyCurve:
@@ -206,13 +197,24 @@ def _speedup(path: Estimate, whitted: Estimate) -> Estimate | None:
                         float(np.divide(path.high, whitted.low)), "<")
 
 
-def goal_summary(levels: list[Level]) -> dict:
+@dataclass
+class GoalSummary:
+    """Whether the family is ``goal`` times faster at every level, and its
+    least speed-up over the levels measured (``None`` where none is)."""
+
+    goal: float
+    levels: int
+    met: int
+    faster: int
+    met_at_every_level: bool
+    least_speedup: Estimate | None
+
+
+def goal_summary(levels: list[Level]) -> GoalSummary:
     """Whether the family is :data:`GOAL` times faster at every level, and
     its least speed-up over the levels measured."""
     measured = [level.speedup for level in levels if level.speedup is not None]
-    least = min(measured, key=lambda s: s.median) if measured else None
-    return {"goal": GOAL, "levels": len(levels),
-            "met": sum(level.goal == "met" for level in levels),
-            "faster": sum(level.verdict == "faster" for level in levels),
-            "met_at_every_level": bool(levels) and all(level.goal == "met" for level in levels),
-            "least_speedup": None if least is None else least.to_json()}
+    return GoalSummary(GOAL, len(levels), sum(level.goal == "met" for level in levels),
+                       sum(level.verdict == "faster" for level in levels),
+                       bool(levels) and all(level.goal == "met" for level in levels),
+                       min(measured, key=lambda s: s.median) if measured else None)

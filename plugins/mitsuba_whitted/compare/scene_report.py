@@ -22,17 +22,21 @@ from ..distributed import SceneSource
 from ..errors import Error
 from ..files import check_folder, check_readable, write_text
 from ..integrators.film import developed_format, develops_to_rgb
+from ..scene_digest import scene_without_integrator_digest
 from ..scene_files import check_not_read
 from ..system import machine
 from .cache import ReferenceCache, cache_key
 from .converged import CONVERGED_SIDE, QUICK_SIDE, converged_renders, mean_errors
-from .equal_error import Analysis, Gain, analyse, gains_json
+from .equal_error import Analysis, Gain, analyse
 from .levels import GOAL, LEVEL_METRIC, NOISE_MULTIPLE, TOP_LEVEL, analyse_levels, goal_summary
-from .intervals import (RELATION_PREFIX, REPLICATES, SEED, TAIL, Estimate, estimate_text,
+from .intervals import (RELATION_PREFIX, REPLICATES, SEED, TAIL, estimate_text, json_data,
                         verdict_text)
 from .metrics import (METRIC_NAMES, TILE_SIDES, missing_energy_share, missing_light, noise_rel_mse,
                       rel_squared_error)
 from .reference import Reference, cached_reference, path_settings
+from .results import (CompareResults, ConvergedFigures, ConvergedRender, Crossing, FamilyThere,
+                      LevelEntry, LevelsFigures, PathRung, PathThere, ReferenceFigures,
+                      TimingFigures, WhittedFigures, gain_fields)
 from .report import Curve, MarkdownReport, Marker, Panel, number, worst_window
 from .sweep import (Sweep, SweepPoint, path_ladder, run_sweep, sampler_sensors,
                     scene_whitted_settings, whitted_settings, whitted_variants)
@@ -84,7 +88,7 @@ class SceneComparison:
     analysis: Analysis
     converged: dict
     report: Path | None
-    results: dict
+    results: CompareResults
 
     @property
     def name(self) -> str:
@@ -150,11 +154,10 @@ def measure_scene(source: SceneSource, options: CompareOptions, cache_dir: str |
     file ``source``, and its results, without the report (``report`` is
     ``None``)."""
     cache = ReferenceCache(cache_dir)
-    settings = path_settings()
-    key = cache_key(scene=source.digest, spp=options.reference_spp,
-                    passes=REFERENCE_PASSES, integrator=settings)
-    reference = cached_reference(cache, key, source, options.reference_spp, REFERENCE_PASSES,
-                                 settings, progress, backend)
+    reference = cached_reference(cache, reference_key(source.path, source.defines,
+                                                      options.reference_spp),
+                                 source, options.reference_spp, REFERENCE_PASSES,
+                                 path_settings(), progress, backend)
     _finish(progress)
     scene = source.scene
     variants = whitted_variants(scene_whitted_settings(scene), options.quick)
@@ -165,10 +168,18 @@ def measure_scene(source: SceneSource, options: CompareOptions, cache_dir: str |
     analysis = analyse(sweep)
     converged = converged_renders(scene, source.digest, variants, cache, options.converged_side,
                                   reference)
-    results = _results(source.path.name, reference, sweep, analysis, converged, options)
-    results["film_filter"] = scene.sensors()[0].film().rfilter().class_name()
+    results = _results(source.path.name, reference, sweep, analysis, converged, options,
+                       scene.sensors()[0].film().rfilter().class_name())
     return SceneComparison(source.path, source.defines, reference, sweep, analysis, converged,
                            None, results)
+
+
+def reference_key(scene_path: Path, defines: dict, spp: int) -> str:
+    """The cache key of a comparison's path reference. It takes the scene
+    without its integrator, which path's own settings replace, so that a
+    change only Whitted sees keeps a reference that takes minutes."""
+    return cache_key(scene=scene_without_integrator_digest(scene_path, defines), spp=spp,
+                     passes=REFERENCE_PASSES, integrator=path_settings())
 
 
 def _finish(progress):
@@ -183,60 +194,50 @@ def slug(label: str) -> str:
 # ---------------------------------------------------------------- results
 
 def _results(name: str, reference: Reference, sweep: Sweep, analysis: Analysis,
-             converged: dict, options: CompareOptions) -> dict:
-    """Every number of the report, keyed for machines."""
+             converged: dict, options: CompareOptions, film_filter: str) -> CompareResults:
+    """Every number of the report."""
     renders = list({id(c): c for c in converged.values()}.values())
     biases = {id(c): mean_errors(c.image, reference.image) for c in renders}
     shown = {p.label for p in shown_rungs(sweep)}
     noise = noise_rel_mse(reference.variance, reference.image)
     levels = analyse_levels(sweep, noise, {label: biases[id(c)]["relmse"]
                                            for label, c in converged.items()})
-    return {
-        "scene": name,
-        "reference": {"spp": reference.spp, "passes": REFERENCE_PASSES,
-                      "seconds": reference.seconds, "cached": reference.cached,
-                      "noise_rel_mse": noise,
-                      "size": list(reference.image.shape[:2])},
-        "metrics": sweep.metrics,
-        "timing": {"rounds": options.rounds, "replicates": REPLICATES, "seed": SEED,
-                   "tiles": TILE_SIDES, "interval": 1 - 2 * TAIL},
-        "converged": {"side": options.converged_side,
-                      "renders": [{"settings": c.settings, "seconds": c.seconds,
-                                   "cached": c.cached} for c in renders]},
-        "whitted": {p.label: {**_point_entry(p, analysis, True),
-                              **_split_entry(p, converged[p.label], biases),
-                              **gains_json(analysis.gains[p.label])}
-                    for p in sweep.of_kind("whitted")},
-        "path": {sampler: [{**_point_entry(sweep.points[i], analysis, sweep.points[i].label
-                                           in shown), "spp": sweep.points[i].spp}
-                           for i in columns]
-                 for sampler, columns, _ in sweep.path_curves()},
-        "levels": {"metric": LEVEL_METRIC, "top": TOP_LEVEL, "noise_multiple": NOISE_MULTIPLE,
-                   "entries": [level.to_json() for level in levels],
-                   "summary": goal_summary(levels)},
-        "crossing": {metric: _crossing_entry(*analysis.crossing(sweep, metric))
-                     for metric in sweep.metrics},
-        "missing_energy_share": missing_energy_share(_first_whitted(sweep).image,
-                                                     reference.image),
-    }
+    return CompareResults(
+        scene=name,
+        reference=ReferenceFigures(reference.spp, REFERENCE_PASSES, reference.seconds,
+                                   reference.cached, noise, list(reference.image.shape[:2])),
+        metrics=sweep.metrics,
+        timing=TimingFigures(options.rounds, REPLICATES, SEED, TILE_SIDES, 1 - 2 * TAIL),
+        converged=ConvergedFigures(options.converged_side,
+                                   [ConvergedRender(c.settings, c.seconds, c.cached)
+                                    for c in renders]),
+        whitted={p.label: WhittedFigures(
+            **_point_fields(p, analysis, True), settings=p.setting.integrator,
+            sampling_error=mean_errors(p.image, converged[p.label].image),
+            model_bias=biases[id(converged[p.label])], **gain_fields(analysis.gains[p.label]))
+            for p in sweep.of_kind("whitted")},
+        path={sampler: [PathRung(**_point_fields(sweep.points[i], analysis,
+                                                 sweep.points[i].label in shown),
+                                 spp=sweep.points[i].spp) for i in columns]
+              for sampler, columns, _ in sweep.path_curves()},
+        levels=LevelsFigures(LEVEL_METRIC, TOP_LEVEL, NOISE_MULTIPLE,
+                             [LevelEntry.of(level) for level in levels], goal_summary(levels)),
+        crossing={metric: _crossing(*analysis.crossing(sweep, metric))
+                  for metric in sweep.metrics},
+        missing_energy_share=missing_energy_share(_first_whitted(sweep).image, reference.image),
+        film_filter=film_filter)
 
 
-def _point_entry(point: SweepPoint, analysis: Analysis, has_image: bool) -> dict:
-    entry = {"first_seconds": point.first_seconds,
-             "seconds": analysis.seconds[point.label].to_json(),
-             "rel_mse": point.rel_mse, "rmse": point.rmse, "flip": point.flip}
-    return {**entry, "image": slug(point.label)} if has_image else entry
+def _point_fields(point: SweepPoint, analysis: Analysis, has_image: bool) -> dict:
+    """A sweep point's :class:`PointFigures` fields."""
+    return {"first_seconds": point.first_seconds,
+            "image": slug(point.label) if has_image else None,
+            "seconds": analysis.seconds[point.label], "rel_mse": point.rel_mse,
+            "rmse": point.rmse, "flip": point.flip}
 
 
-def _split_entry(point: SweepPoint, converged, biases: dict) -> dict:
-    return {"settings": point.setting.integrator,
-            "sampling_error": mean_errors(point.image, converged.image),
-            "model_bias": biases[id(converged)]}
-
-
-def _crossing_entry(point: SweepPoint, gain: Gain) -> dict:
-    return {"label": point.label, "path_seconds": gain.path_seconds.to_json(),
-            "path_spp": gain.path_spp.to_json(), "sampler": gain.sampler}
+def _crossing(point: SweepPoint, gain: Gain) -> Crossing:
+    return Crossing(point.label, gain.path_seconds, gain.path_spp, gain.sampler)
 
 
 def _first_whitted(sweep: Sweep) -> SweepPoint:
@@ -275,11 +276,11 @@ def _write_report(out_dir, scene_path, defines, reference, sweep, converged, res
         f"pixels. Reference: Mitsuba's `path` (max_depth {path_settings()['max_depth']}), "
         f"{reference.spp} spp in {REFERENCE_PASSES} independent passes, {origin} "
         f"({reference.seconds:.1f} s to render); its own noise, estimated from the spread of "
-        f"the passes, is a relMSE of {number(results['reference']['noise_rel_mse'])}. "
-        f"{timing_sentence(results['timing']['rounds'])} Machine: {machine()}.")
-    if results["film_filter"] != "BoxFilter":
+        f"the passes, is a relMSE of {number(results.reference.noise_rel_mse)}. "
+        f"{timing_sentence(results.timing.rounds)} Machine: {machine()}.")
+    if results.film_filter != "BoxFilter":
         report.paragraph(
-            f"Note: the film's reconstruction filter is `{results['film_filter']}`; the path "
+            f"Note: the film's reconstruction filter is `{results.film_filter}`; the path "
             "images use it, while Whitted averages each pixel over its own square (a box), "
             "so edges differ a little even where both agree. A `box` rfilter avoids this.")
     if keep_linear:
@@ -290,7 +291,7 @@ def _write_report(out_dir, scene_path, defines, reference, sweep, converged, res
                   "error against render time, relMSE and FLIP")
     _image_grid(report, reference, sweep, converged, keep_linear)
     _missing_light(report, reference, sweep, results)
-    write_text(Path(out_dir) / "results.json", json.dumps(results, indent=1))
+    write_text(Path(out_dir) / "results.json", json.dumps(json_data(results), indent=1))
     return report.write("report.md")
 
 
@@ -332,13 +333,13 @@ def speedup_sentence() -> str:
 def _error_tables(report, results):
     report.heading("Error and time")
     whitted_table(report, results)
-    report.paragraph(f"{split_sentence(results['converged']['side'])} {speedup_sentence()}")
+    report.paragraph(f"{split_sentence(results.converged.side)} {speedup_sentence()}")
     report.table(["path", "spp", "first render (s)", "warm render (s)", "relMSE", "RMSE",
                   "FLIP"],
-                 [[sampler, rung["spp"], number(rung["first_seconds"]),
-                   _seconds(rung["seconds"]), number(rung["rel_mse"]), number(rung["rmse"]),
-                   number(rung["flip"])]
-                  for sampler, rungs in results["path"].items() for rung in rungs])
+                 [[sampler, rung.spp, number(rung.first_seconds),
+                   estimate_text(rung.seconds, digits=3), number(rung.rel_mse),
+                   number(rung.rmse), number(rung.flip)]
+                  for sampler, rungs in results.path.items() for rung in rungs])
     for sentence in verdict_sentences(results):
         report.paragraph(sentence)
     levels_table(report, results)
@@ -354,135 +355,122 @@ def levels_sentence() -> str:
             "*missed* where it lies below, else *undecided*.")
 
 
-def levels_table(report: MarkdownReport, results: dict) -> None:
+def levels_table(report: MarkdownReport, results: CompareResults) -> None:
     """The speed-up at each error level of ``results``, and its summary."""
-    levels = results["levels"]
-    summary = levels["summary"]
-    if not levels["entries"]:
+    levels = results.levels
+    summary = levels.summary
+    if not levels.entries:
         report.paragraph(f"No error levels: the reference's own noise times "
                          f"{NOISE_MULTIPLE:g} is above {TOP_LEVEL:g}.")
         return
     report.paragraph(levels_sentence())
     report.table(["relMSE level", "path there", "Whitted family there", "speed-up",
                   f"{GOAL:g}x goal"],
-                 [[number(entry["error"]), _path_cell(entry["path"]),
-                   _family_cell(entry["whitted"]),
-                   "-" if entry["speedup"] is None else
-                   verdict_text(Estimate.from_json(entry["speedup"])), entry["goal"]]
-                  for entry in levels["entries"]])
-    report.paragraph(f"The goal is met at {summary['met']} of {summary['levels']} levels; "
-                     f"the family is faster at {summary['faster']}.")
+                 [[number(entry.error), _path_cell(entry.path), _family_cell(entry.whitted),
+                   "-" if entry.speedup is None else verdict_text(entry.speedup), entry.goal]
+                  for entry in levels.entries])
+    report.paragraph(f"The goal is met at {summary.met} of {summary.levels} levels; "
+                     f"the family is faster at {summary.faster}.")
 
 
-def _path_cell(path: dict) -> str:
-    return (f"{_seconds(path['seconds'])} s, {number(path['spp']['median'], 2)} spp, "
-            f"{path['sampler']}")
+def _path_cell(path: PathThere) -> str:
+    return (f"{estimate_text(path.seconds, digits=3)} s, {number(path.spp.median, 2)} spp, "
+            f"{path.sampler}")
 
 
-def _family_cell(whitted: dict) -> str:
-    if whitted["setting"] is None:
-        seconds = Estimate.from_json(whitted["seconds"])
-        return ("not reached: below every model's bias" if math.isinf(seconds.median)
-                else f"not reached; more samples would take > {number(seconds.median)} s")
-    paths = "" if whitted["paths"] is None else f", {number(whitted['paths'], 2)} paths"
-    return f"{_seconds(whitted['seconds'])} s, {whitted['setting']}{paths}"
+def _family_cell(whitted: FamilyThere) -> str:
+    if whitted.setting is None:
+        return ("not reached: below every model's bias" if math.isinf(whitted.seconds.median)
+                else f"not reached; more samples would take > {number(whitted.seconds.median)} s")
+    paths = "" if whitted.paths is None else f", {number(whitted.paths, 2)} paths"
+    return f"{estimate_text(whitted.seconds, digits=3)} s, {whitted.setting}{paths}"
 
 
-def whitted_table(report: MarkdownReport, results: dict) -> None:
+def whitted_table(report: MarkdownReport, results: CompareResults) -> None:
     """Each Whitted setting of ``results``: its times, its error split in
     each metric, its speed-up in each metric with interval and verdict."""
-    metrics = results["metrics"]
-    rows = [[label, number(entry["first_seconds"]), _seconds(entry["seconds"])]
+    metrics = results.metrics
+    rows = [[label, number(entry.first_seconds), estimate_text(entry.seconds, digits=3)]
             + [_split_cell(entry, metric) for metric in metrics]
             + [_gain_cell(entry, metric) for metric in metrics]
-            for label, entry in results["whitted"].items()]
+            for label, entry in results.whitted.items()]
     report.table(["Whitted setting", "first render (s)", "warm render (s)"]
                  + [f"{METRIC_NAMES[m]}: total / sampling / model bias" for m in metrics]
                  + [f"speed-up at equal {METRIC_NAMES[m]}; path there" for m in metrics],
                  rows)
 
 
-def verdict_sentences(results: dict) -> list[str]:
+def verdict_sentences(results: CompareResults) -> list[str]:
     """Where the metrics' verdicts differ, and where path overtakes the
     most accurate Whitted setting in each metric."""
-    return disagreements(results) + [crossing_sentence(results["crossing"][metric], metric)
-                                     for metric in results["metrics"]]
+    return disagreements(results) + [crossing_sentence(results.crossing[metric], metric)
+                                     for metric in results.metrics]
 
 
-def _seconds(estimate: dict) -> str:
-    return estimate_text(Estimate.from_json(estimate), digits=3)
+def _split_cell(entry: WhittedFigures, metric: str) -> str:
+    return (f"{number(entry.total(metric))} / {number(entry.sampling_error[metric])} / "
+            f"{number(entry.model_bias[metric])}")
 
 
-def _split_cell(entry: dict, metric: str) -> str:
-    total = entry["rel_mse"] if metric == "relmse" else entry["flip"]
-    return (f"{number(total)} / {number(entry['sampling_error'][metric])} / "
-            f"{number(entry['model_bias'][metric])}")
-
-
-def _gain_cell(entry: dict, metric: str) -> str:
-    path = entry["path_at_equal_error"][metric]
-    seconds, spp = (Estimate.from_json(path[key]) for key in ("seconds", "spp"))
-    return (f"{verdict_text(Estimate.from_json(entry['speedup'][metric]))}; path "
-            f"{RELATION_PREFIX[seconds.relation]}{number(seconds.median)} s, "
-            f"{number(spp.median, 2)} spp, {path['sampler']}")
+def _gain_cell(entry: WhittedFigures, metric: str) -> str:
+    path = entry.path_at_equal_error[metric]
+    return (f"{verdict_text(entry.speedup[metric])}; path "
+            f"{RELATION_PREFIX[path.seconds.relation]}{number(path.seconds.median)} s, "
+            f"{number(path.spp.median, 2)} spp, {path.sampler}")
 
 
 #: A verdict in a sentence.
 VERDICT_WORDS = {"faster": "faster", "slower": "slower", "tie": "a tie"}
 
 
-def disagreements(results: dict) -> list[str]:
+def disagreements(results: CompareResults) -> list[str]:
     """A sentence for each Whitted setting whose verdicts differ between
     the metrics."""
     sentences = []
-    for label, entry in results["whitted"].items():
-        verdicts = entry["verdict"]
+    for label, entry in results.whitted.items():
+        verdicts = entry.verdict
         if len(set(verdicts.values())) > 1:
             said = [f"at equal {METRIC_NAMES[m]} it is {VERDICT_WORDS[v]} "
-                    f"({estimate_text(Estimate.from_json(entry['speedup'][m]), 'x')})"
+                    f"({estimate_text(entry.speedup[m], 'x')})"
                     for m, v in verdicts.items()]
             sentences.append(f"The metrics disagree on *{label}*: {' while '.join(said)}.")
     return sentences
 
 
-def crossing_sentence(cross: dict, metric: str) -> str:
+def crossing_sentence(cross: Crossing, metric: str) -> str:
     """Where path overtakes the most accurate Whitted setting in ``metric``."""
-    seconds, spp = Estimate.from_json(cross["path_seconds"]), Estimate.from_json(cross["path_spp"])
+    seconds, spp = cross.path_seconds, cross.path_spp
     where = {"=": f"at {estimate_text(seconds, ' s')}, about {estimate_text(spp, ' spp')} "
-                  f"with {cross['sampler']}",
+                  f"with {cross.sampler}",
              "<": f"already at 1 spp ({estimate_text(seconds, ' s')})",
              ">": f"beyond the measured range (after {estimate_text(seconds, ' s')})"}
     return (f"In {METRIC_NAMES[metric]}, path's curves cross {where[seconds.relation]}: from "
             f"there on `path` is more accurate than the most accurate Whitted setting here "
-            f"({cross['label']}).")
+            f"({cross.label}).")
 
 
-def speed_panels(results: dict) -> list[Panel]:
+def speed_panels(results: CompareResults) -> list[Panel]:
     """The speed plot's panels, one per metric, from ``results``."""
     return [Panel(METRIC_NAMES[metric],
-                  [Curve(sampler, [r["seconds"]["median"] for r in rungs],
-                         [r[_TOTAL[metric]] for r in rungs], [r["spp"] for r in rungs])
-                   for sampler, rungs in results["path"].items()],
-                  [Marker(label, entry["seconds"]["median"], entry[_TOTAL[metric]],
-                          entry["sampling_error"][metric])
-                   for label, entry in results["whitted"].items()],
+                  [Curve(sampler, [r.seconds.median for r in rungs],
+                         [r.total(metric) for r in rungs], [r.spp for r in rungs])
+                   for sampler, rungs in results.path.items()],
+                  [Marker(label, entry.seconds.median, entry.total(metric),
+                          entry.sampling_error[metric])
+                   for label, entry in results.whitted.items()],
                   _biases(results, metric),
-                  results["reference"]["noise_rel_mse"] if metric == "relmse" else None)
-            for metric in results["metrics"]]
+                  results.reference.noise_rel_mse if metric == "relmse" else None)
+            for metric in results.metrics]
 
 
-#: The key of each metric's total error in a point's entry.
-_TOTAL = {"relmse": "rel_mse", "flip": "flip"}
-
-
-def _biases(results: dict, metric: str) -> list[tuple[str, float]]:
+def _biases(results: CompareResults, metric: str) -> list[tuple[str, float]]:
     """Each distinct model's bias, named by the first setting of that model
     and how many more share it."""
     models = {}
-    for label, entry in results["whitted"].items():
-        models.setdefault(json.dumps(entry["model_bias"], sort_keys=True), []).append(label)
+    for label, entry in results.whitted.items():
+        models.setdefault(json.dumps(entry.model_bias, sort_keys=True), []).append(label)
     return [(labels[0] + (f" +{len(labels) - 1}" if len(labels) > 1 else ""),
-             results["whitted"][labels[0]]["model_bias"][metric])
+             results.whitted[labels[0]].model_bias[metric])
             for labels in models.values()]
 
 
@@ -538,5 +526,5 @@ def _missing_light(report, reference, sweep, results):
     report.paragraph(
         f"Reference minus Whitted ({point.label}), positive part: light the path tracer "
         f"finds and Whitted does not (indirect diffuse light, caustics). It is "
-        f"{100 * results['missing_energy_share']:.1f}% of the reference's total luminance.")
+        f"{100 * results.missing_energy_share:.1f}% of the reference's total luminance.")
     report.figure(link, "light Whitted leaves out")

@@ -8,8 +8,8 @@ each distinct hash, however many scenes share them. The worker rebuilds the
 scene's directory layout in a temporary directory, loads the scene from it
 and removes it.
 
-The files are the ones :func:`..compare.cache.named_files` finds, the same
-that the reference cache's key covers. A file named by an absolute path
+The files are the ones :func:`..scene_digest.named_files` finds, the same
+that :func:`..scene_digest.scene_digest` covers. A file named by an absolute path
 stays where it is: it is read from the worker's own file system.
 """
 
@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 
 from ..errors import Error
+from ..scene_digest import named_files, scene_digest
 
 
 class SceneShippingError(Error, RuntimeError):
@@ -44,7 +45,7 @@ class SceneBundle:
 @dataclass
 class SceneSource:
     """A scene file and its defines, identified by :attr:`digest` (the
-    reference cache's :func:`scene_digest`). ``scene``, when given, is that
+    :func:`..scene_digest.scene_digest`). ``scene``, when given, is that
     file already loaded in this process, which the in-process backend
     renders instead of loading it again."""
 
@@ -54,9 +55,6 @@ class SceneSource:
     digest: str = field(init=False, default="")
 
     def __post_init__(self):
-        # Imported here: the comparison's references import this package.
-        from ..compare.cache import scene_digest
-
         if self.path is not None:
             self.path = Path(self.path)
             self.digest = scene_digest(self.path, self.defines)
@@ -80,12 +78,10 @@ class SceneSource:
 
     def bundle(self) -> tuple[SceneBundle, dict[str, bytes]]:
         """The bundle and the contents it names, by hash."""
-        from ..compare.cache import named_files
-
         if self.path is None:
             raise SceneShippingError(
-                "a scene made in Python has no file to send to other "
-                "processes; render it in-process or load it from a scene file.")
+                "a scene made in Python has no file to send to other processes; render it "
+                "in-process or load it from a scene file.")
         files, contents = [], {}
         for name, path in named_files(self.path):
             if os.path.isabs(name):
