@@ -35,7 +35,7 @@ def resolution_at(*positions: float) -> float:
     return FLOAT32_RESOLUTION * max([1.0, *(abs(p) for p in positions)])
 
 
-def describe(value) -> str:
+def value_text(value) -> str:
     """``value`` as a user wrote it: text quoted, numbers as numbers, other
     objects by their type (their own text may span many lines)."""
     if isinstance(value, str):
@@ -74,7 +74,7 @@ def checked_numbers(value, plugin: str, name: str, *, size: int = 1,
     numbers = _as_numbers(value)
     if numbers is not None and broadcast and numbers.size == 1:
         numbers = np.repeat(numbers, size)
-    got = describe(value)
+    got = value_text(value)
     check(numbers is not None and numbers.size == size, plugin, name, f"must be {what} (got {got})")
     with np.errstate(over="ignore"):
         in_float32 = np.isfinite(numbers.astype(np.float32))
@@ -114,14 +114,14 @@ def checked_transform(value, plugin: str, name: str = "to_world") -> tuple[np.nd
     matrices ``(M, M⁻¹)``, or a :class:`ParameterError` unless it is
     finite, affine and invertible, its inverse finite in float32 too."""
     matrix = _matrix(value)
-    check(matrix is not None, plugin, name, f"must be a transform (got {describe(value)})")
+    check(matrix is not None, plugin, name, f"must be a transform (got {value_text(value)})")
     m = np.asarray(matrix, dtype=np.float64)
     if m.ndim == 3:  # a JIT transform: one matrix per lane
         check(m.shape[2] == 1, plugin, name, f"must be one transform (got {m.shape[2]})")
         m = m[..., 0]
     check(np.isfinite(m).all(), plugin, name, "must be finite (its matrix holds NaN or Inf)")
     check(np.array_equal(m[3], [0.0, 0.0, 0.0, 1.0]), plugin, name,
-          f"must be affine (its last row is {describe(m[3])}, not [0, 0, 0, 1])")
+          f"must be affine (its last row is {value_text(m[3])}, not [0, 0, 0, 1])")
     try:
         inverse = invert_affine_f64(m)
     except np.linalg.LinAlgError:
@@ -143,7 +143,7 @@ def read_texture(props: mi.Properties, name: str, plugin: str, default=None) -> 
         value = props.get(name)
         expected = ("a colour with channels from 0 to 1" if isinstance(value, mi.ScalarColor3d)
                     else "a texture, a colour or a number")
-        raise ParameterError(plugin, name, f"must be {expected} (got {describe(value)})") from None
+        raise ParameterError(plugin, name, f"must be {expected} (got {value_text(value)})") from None
 
 
 def _is_finite(value) -> bool:

@@ -8,7 +8,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..errors import check
-from ..parameters import LastValid, checked_numbers, describe, read_texture
+from ..parameters import LastValid, checked_numbers, read_texture, value_text
 
 PLUGIN_NAME = "phong"
 
@@ -128,7 +128,7 @@ class Phong(mi.BSDF):
             constants = {name: _constant_value(getattr(self, name)) for name in REFLECTANCES}
             for name, value in constants.items():
                 check(value is None or (value >= 0).all(), PLUGIN_NAME, name,
-                      f"must not be negative (got {describe(value)})")
+                      f"must not be negative (got {value_text(value)})")
             # Opaque, so that changing it through mi.traverse reuses the kernels.
             dr.make_opaque(self.exponent)
             self._warn_if_not_energy_conserving(constants)

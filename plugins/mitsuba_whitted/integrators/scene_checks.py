@@ -19,7 +19,7 @@ from .settings import PLUGIN_NAME
 LIGHT_AMOUNTS = ("intensity", "radiance", "irradiance", "texture", "data", "scale")
 
 
-def describe(obj, kind: str, index: int) -> str:
+def scene_object_name(obj, kind: str, index: int) -> str:
     """How an error names ``obj``: its id if the scene gave one, else its
     kind, index and class (``emitter 2 (PointLight)``)."""
     name = obj.id()
@@ -40,9 +40,9 @@ def _emitter_name(emitter, index: int, shapes: list) -> str:
     the name of the property it was given in)."""
     shape = emitter.get_shape()
     if shape is None:
-        return describe(emitter, "emitter", index)
+        return scene_object_name(emitter, "emitter", index)
     position = next(i for i, candidate in enumerate(shapes) if candidate == shape)
-    return f"the {emitter.class_name()} of {describe(shape, 'shape', position)}"
+    return f"the {emitter.class_name()} of {scene_object_name(shape, 'shape', position)}"
 
 
 def check_placements(scene: mi.Scene) -> None:
@@ -50,7 +50,7 @@ def check_placements(scene: mi.Scene) -> None:
     positions, radii, vertices)."""
     for kind, objects in (("sensor", scene.sensors()), ("shape", scene.shapes())):
         for index, obj in enumerate(objects):
-            _check_values(obj, describe(obj, kind, index), ())
+            _check_values(obj, scene_object_name(obj, kind, index), ())
 
 
 def _check_values(obj, name: str, non_negative: tuple) -> None:

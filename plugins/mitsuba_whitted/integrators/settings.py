@@ -7,7 +7,7 @@ from __future__ import annotations
 import mitsuba as mi
 
 from ..errors import VariantError, check
-from ..parameters import check_seed, checked_numbers, describe
+from ..parameters import check_seed, checked_numbers, value_text
 
 PLUGIN_NAME = "whitted"
 
@@ -38,7 +38,7 @@ def _whole(default: int):
     def read(props: mi.Properties, name: str) -> int:
         given = _given(props, name, default)
         check(not isinstance(given, str), PLUGIN_NAME, name,
-              f"must be a whole number (got {describe(given)})")
+              f"must be a whole number (got {value_text(given)})")
         value = checked_numbers(given, PLUGIN_NAME, name)[0]
         check(value == int(value), PLUGIN_NAME, name, f"must be a whole number (got {value:g})")
         low, high = INT32_RANGE
@@ -58,7 +58,7 @@ def _flag(default: bool):
     def read(props: mi.Properties, name: str) -> bool:
         value = _given(props, name, default)
         check(isinstance(value, bool), PLUGIN_NAME, name,
-              f"must be true or false (got {describe(value)})")
+              f"must be true or false (got {value_text(value)})")
         return value
     return read
 
