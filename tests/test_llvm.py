@@ -71,8 +71,8 @@ def test_probe_accepts_the_library_in_use(monkeypatch, tmp_path):
 def test_probe_program_imports_dr_jit_and_nothing_of_the_package():
     """The probe's child starts with no libLLVM loaded: importing the
     package (or Mitsuba) would choose and load one first."""
-    from mitsuba_whitted import programs
-    python, *program = programs.command("llvm_probe", llvm.loaded_library())
+    from mitsuba_whitted.system import program_command
+    python, *program = program_command("llvm_probe", llvm.loaded_library())
     result = subprocess.run([python, "-X", "importtime", *program], capture_output=True,
                             text=True, timeout=120)
     assert result.returncode == 0, result.stderr

@@ -22,9 +22,9 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from . import programs
 from .errors import Error
 from .files import write_text
+from .system import program_command
 
 #: Versions known to abort Dr.Jit 1.5 on x86-64.
 BROKEN_BELOW = 17
@@ -99,7 +99,7 @@ def probe(path: str) -> bool:
     except (OSError, ValueError):
         verdicts = {}
     if key not in verdicts:
-        result = subprocess.run(programs.command("llvm_probe", path),
+        result = subprocess.run(program_command("llvm_probe", path),
                                 capture_output=True, timeout=120)
         verdicts[key] = result.returncode == 0
         try:

@@ -1,5 +1,6 @@
-"""What the machine says about itself (where Linux says it), and the versions
-timings depend on."""
+"""What the machine says about itself (where Linux says it), the versions
+timings depend on, and how this interpreter runs the package's programs in
+child processes."""
 
 from __future__ import annotations
 
@@ -7,6 +8,15 @@ import codecs
 import os
 import platform
 import sys
+from pathlib import Path
+
+
+def program_command(program: str, *args: str) -> list[str]:
+    """The command line that runs ``program`` (a file of
+    :mod:`mitsuba_whitted.programs`, without ``.py``) with ``args`` in this
+    interpreter."""
+    folder = Path(__file__).with_name("programs")
+    return [sys.executable, str(folder / f"{program}.py"), *args]
 
 
 def proc_field(path: str, name: str) -> str | None:

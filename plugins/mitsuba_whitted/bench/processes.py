@@ -14,8 +14,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from .. import programs
-from ..system import proc_field
+from ..system import proc_field, program_command
 
 #: Longest a child render may take before the bench gives up on it.
 CHILD_TIMEOUT_S = 1800
@@ -62,7 +61,7 @@ def child_peak_memory(scene_path: Path, defines: dict, settings: dict,
     ``settings``, see :func:`~mitsuba_whitted.overrides.load_with`) and
     renders it, or takes one gradient of it (``work``); the child runs
     :mod:`~mitsuba_whitted.programs.peak_memory`."""
-    result = _run_child(programs.command("peak_memory", str(scene_path), json.dumps(defines),
+    result = _run_child(program_command("peak_memory", str(scene_path), json.dumps(defines),
                                          json.dumps(settings), work))
     # Mitsuba's log shares stdout (with colour codes): find our own line.
     return float(re.findall(r"peak_rss_mib ([0-9.]+)", result.stdout)[-1])

@@ -15,7 +15,7 @@ import subprocess
 
 import numpy as np
 
-from .. import programs
+from ..system import program_command
 
 #: Each metric of :func:`error_maps` as the reports name it.
 METRIC_NAMES = {"relmse": "relMSE", "flip": "FLIP"}
@@ -105,7 +105,7 @@ class _FlipWorker:
     does, however that ends."""
 
     def __init__(self):
-        self.process = subprocess.Popen(programs.command("flip_worker"),
+        self.process = subprocess.Popen(program_command("flip_worker"),
                                         stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                         stderr=subprocess.PIPE, start_new_session=True)
 

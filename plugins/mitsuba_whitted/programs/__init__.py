@@ -6,15 +6,7 @@ Mitsuba. The libLLVM probe must start without any libLLVM loaded, and the
 FLIP worker needs none of them. The folder holds only these programs, so
 that the child's first import path (the program's folder) hides no module
 of the standard library or of Dr.Jit.
+
+Nothing in the package imports them (:func:`mitsuba_whitted.system.program_command`
+makes their command lines), so that they may import any part of it.
 """
-
-from __future__ import annotations
-
-import sys
-from pathlib import Path
-
-
-def command(program: str, *args: str) -> list[str]:
-    """The command line that runs ``program`` (a file of this folder,
-    without ``.py``) with ``args`` in this interpreter."""
-    return [sys.executable, str(Path(__file__).with_name(f"{program}.py")), *args]
