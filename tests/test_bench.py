@@ -53,12 +53,13 @@ def test_bench_quick_writes_every_figure(tmp_path):
     warm = scene["timing"]["warm"]
     assert 0 < warm["low"] <= warm["median"] <= warm["high"]
     equal_error = figures["equal_error"]
-    assert equal_error["whitted"] == HEADLINE and len(equal_error["settings"]) > 1
+    assert len(equal_error["settings"]) > 1
+    headline = next(row for row in equal_error["settings"] if row["whitted"] == HEADLINE)
     for metric in ("relmse", "flip"):
-        assert equal_error["speedup"][metric]["median"] > 0
-        assert equal_error["verdict"][metric] in ("faster", "slower", "tie")
+        assert headline["speedup"][metric]["median"] > 0
+        assert headline["verdict"][metric] in ("faster", "slower", "tie")
     gradient = figures["gradient"]
-    assert gradient["parameters"] > 0 and gradient["ratio"] > 0
+    assert gradient["timing"]["parameters"] > 0 and gradient["timing"]["ratio"] > 0
     assert all(mib > 0 for mib in gradient["peak_rss_mib"].values())
     assert gradient["equal_error"]["prb"][0]["rel_error"] > 0
     table = result.stdout

@@ -3,11 +3,14 @@ tracer takes to match Whitted's error on a scene both render alike."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import mitsuba as mi
 
 from ..compare import (PATH_SAMPLERS, analyse, noise_rel_mse, path_ladder, path_settings,
                        render_reference, run_sweep, whitted_settings)
-from ..compare.equal_error import gains_json
+from ..compare.intervals import Estimate
+from ..compare.results import PathThere, gain_fields
 from ..compare.sweep import CONTRAST_AA
 
 #: Longest path of every render in the equal-error comparison (the
@@ -55,8 +58,37 @@ def equal_error_settings() -> dict:
 HEADLINE = "whitted contrast 16x16, min_throughput 0.0001"
 
 
+@dataclass
+class EqualErrorSetting:
+    """A Whitted setting's error and time, and, by metric, its speed-up
+    over path at that error, the verdict and path's figures there."""
+    whitted: str
+    whitted_rel_mse: float
+    whitted_flip: float | None
+    whitted_seconds: Estimate
+    speedup: dict[str, Estimate]
+    verdict: dict[str, str]
+    path_at_equal_error: dict[str, PathThere]
+
+
+@dataclass
+class EqualErrorFigures:
+    """The comparison: its scene, its reference, and every setting; the
+    headline is :data:`HEADLINE`'s row."""
+    scene: str
+    resolution: int
+    reference_spp: int
+    reference_noise_rel_mse: float
+    rounds: int
+    settings: list[EqualErrorSetting]
+
+    @property
+    def headline(self) -> EqualErrorSetting:
+        return next(row for row in self.settings if row.whitted == HEADLINE)
+
+
 def equal_error_speedup(resolution: int, reference_spp: int, largest_spp: int,
-                        rounds: int, progress=None) -> dict:
+                        rounds: int, progress=None) -> EqualErrorFigures:
     """Time ``path`` needs to match Whitted's error on ``fresnel_scene``,
     over Whitted's time (both warm, timed in ``rounds`` interleaved rounds,
     against one converged reference), in relMSE and FLIP with their 95%
@@ -75,12 +107,10 @@ def equal_error_speedup(resolution: int, reference_spp: int, largest_spp: int,
                       + path_ladder(largest_spp, depth=EQUAL_ERROR_DEPTH), sensors, rounds,
                       progress)
     analysis = analyse(sweep)
-    rows = [{"whitted": p.label, "whitted_rel_mse": p.rel_mse, "whitted_flip": p.flip,
-             "whitted_seconds": analysis.seconds[p.label].to_json(),
-             **gains_json(analysis.gains[p.label])} for p in sweep.of_kind("whitted")]
-    headline = next(row for row in rows if row["whitted"] == HEADLINE)
-    return {"scene": "glass sphere before an emitting checkerboard",
-            "resolution": resolution, "reference_spp": reference.spp,
-            "reference_noise_rel_mse": noise_rel_mse(reference.variance, reference.image),
-            "rounds": rounds, "settings": rows, **headline}
+    rows = [EqualErrorSetting(p.label, p.rel_mse, p.flip, analysis.seconds[p.label],
+                              **gain_fields(analysis.gains[p.label]))
+            for p in sweep.of_kind("whitted")]
+    return EqualErrorFigures("glass sphere before an emitting checkerboard", resolution,
+                             reference.spp,
+                             noise_rel_mse(reference.variance, reference.image), rounds, rows)
 

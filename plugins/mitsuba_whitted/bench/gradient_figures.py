@@ -21,6 +21,7 @@ to reach that error is extrapolated from its ladder at that rate.
 from __future__ import annotations
 
 import statistics
+from dataclasses import dataclass
 from pathlib import Path
 
 import drjit as dr
@@ -77,7 +78,20 @@ class GradientStep:
         return gradients
 
 
-def gradient_timing(scene_path: Path, defines: dict, settings: dict, repeats: int) -> dict:
+@dataclass
+class GradientTiming:
+    """A gradient of the scene beside its render (medians of alternating
+    rounds; ``ratio`` is the median of the rounds' ratios)."""
+    parameters: int
+    entries: int
+    first_gradient_s: float
+    render_s: float
+    gradient_s: float
+    ratio: float
+
+
+def gradient_timing(scene_path: Path, defines: dict, settings: dict,
+                    repeats: int) -> GradientTiming:
     """Warm render and gradient of the scene, in alternating rounds."""
     scene = load_with(scene_path, defines, settings)
     step = GradientStep(scene)
@@ -86,11 +100,9 @@ def gradient_timing(scene_path: Path, defines: dict, settings: dict, repeats: in
     for _ in range(repeats):
         renders += timed(lambda: mi.render(scene), 1)[1]
         steps += timed(step, 1)[1]
-    return {"parameters": len(step.keys),
-            "entries": sum(_entries(step.params[key]) for key in step.keys),
-            "first_gradient_s": first, "render_s": statistics.median(renders),
-            "gradient_s": statistics.median(steps),
-            "ratio": statistics.median([g / r for g, r in zip(steps, renders)])}
+    return GradientTiming(len(step.keys), sum(_entries(step.params[key]) for key in step.keys),
+                          first, statistics.median(renders), statistics.median(steps),
+                          statistics.median([g / r for g, r in zip(steps, renders)]))
 
 
 def equivalence_scene(resolution: int) -> dict:
@@ -131,7 +143,42 @@ def relative_error(estimate: np.ndarray, exact: np.ndarray) -> float:
     return float(np.sqrt(np.mean((estimate - exact) ** 2) / np.mean(exact ** 2)))
 
 
-def equal_error_gradient(resolution: int, largest_spp: int, seeds: int, repeats: int) -> dict:
+@dataclass
+class PrbRung:
+    """prb at ``spp`` paths per pixel: its median time and mean error."""
+    spp: int
+    seconds: float
+    rel_error: float
+
+
+@dataclass
+class GradientEqualError:
+    """whitted's exact gradient against prb's ladder on one scene, and
+    prb's samples and time extrapolated to whitted's (rounding) error."""
+    scene: str
+    resolution: int
+    entries: int
+    whitted_seconds: float
+    whitted_rel_error: float
+    prb: list[PrbRung]
+    prb_at_one_percent: PrbRung | None
+    prb_spp_at_whitted_error: float
+    prb_seconds_at_whitted_error: float
+
+
+@dataclass
+class GradientFigures:
+    """Every gradient figure of the bench: of the scene's own gradient,
+    ``timing`` and ``peak_rss_mib`` are ``None`` where ``not_measured``
+    says why."""
+    timing: GradientTiming | None
+    peak_rss_mib: dict | None
+    not_measured: str | None
+    equal_error: GradientEqualError
+
+
+def equal_error_gradient(resolution: int, largest_spp: int, seeds: int,
+                         repeats: int) -> GradientEqualError:
     """Time and error of whitted's gradient and of prb's at 1, 4, ...
     ``largest_spp`` paths per pixel (see the module's docstring)."""
     from ..compare.gradient_equivalence import prb_gradient_batches, whitted_gradient
@@ -153,19 +200,16 @@ def equal_error_gradient(resolution: int, largest_spp: int, seeds: int, repeats:
                 scene, params, keys, 1, spp, EQUAL_ERROR_DEPTH, seed)[0], 1)
             estimates.append(estimate)
             prb_seconds.append(elapsed)
-        ladder.append({"spp": spp, "seconds": statistics.median(prb_seconds),
-                       "rel_error": statistics.mean(relative_error(e, exact)
-                                                    for e in estimates)})
+        ladder.append(PrbRung(spp, statistics.median(prb_seconds),
+                              statistics.mean(relative_error(e, exact) for e in estimates)))
         spp *= 4
     last = ladder[-1]
     # prb's error falls as 1/sqrt(spp) and its time grows as spp.
-    needed = last["spp"] * (last["rel_error"] / max(rounding, 1e-12)) ** 2
-    percent = next((row for row in ladder if row["rel_error"] <= 0.01), None)
-    return {"scene": "a Phong ball before a gold mirror, two point lights",
-            "resolution": resolution, "entries": int(exact.size),
-            "whitted_seconds": statistics.median(seconds[1:]), "whitted_rel_error": rounding,
-            "prb": ladder, "prb_at_one_percent": percent, "prb_spp_at_whitted_error": needed,
-            "prb_seconds_at_whitted_error": last["seconds"] * needed / last["spp"]}
+    needed = last.spp * (last.rel_error / max(rounding, 1e-12)) ** 2
+    percent = next((row for row in ladder if row.rel_error <= 0.01), None)
+    return GradientEqualError("a Phong ball before a gold mirror, two point lights", resolution,
+                              int(exact.size), statistics.median(seconds[1:]), rounding, ladder,
+                              percent, needed, last.seconds * needed / last.spp)
 
 
 def _entries(value) -> int:
@@ -199,45 +243,45 @@ INDIRECT_NOT_DIFFERENTIATED = ("the scene's whitted gathers indirect light "
 
 
 def measure_gradients(scene_path: Path, defines: dict, scene_settings: dict, repeats: int,
-            memory_resolution: int, equal_error: tuple, report=print,
-            indirect: bool = False) -> dict:
+                      memory_resolution: int, equal_error: tuple, report=print,
+                      indirect: bool = False) -> GradientFigures:
     """Every gradient figure of the bench; of the scene's own gradient none
     where it has ``indirect`` paths."""
+    timing = memory = not_measured = None
     if indirect:
-        figures = {"not_measured": INDIRECT_NOT_DIFFERENTIATED}
+        not_measured = INDIRECT_NOT_DIFFERENTIATED
     else:
         report("timing gradients ...")
-        figures = gradient_timing(scene_path, defines, scene_settings, repeats)
+        timing = gradient_timing(scene_path, defines, scene_settings, repeats)
         report("peak memory of a gradient in a child process ...")
-        figures["peak_rss_mib"] = {str(memory_resolution): child_peak_memory(
+        memory = {str(memory_resolution): child_peak_memory(
             scene_path, defines, dict(scene_settings, res=memory_resolution), work="gradient")}
     report("equal gradient error against prb ...")
-    figures["equal_error"] = equal_error_gradient(*equal_error, repeats=repeats)
-    return figures
+    return GradientFigures(timing, memory, not_measured,
+                           equal_error_gradient(*equal_error, repeats=repeats))
 
 
-def format_lines(figures: dict) -> list:
+def format_lines(figures: GradientFigures) -> list:
     """The gradient figures as lines of the bench's table."""
-    eq = figures["equal_error"]
-    lines = [f"  gradient: not measured: {figures['not_measured']}"] if (
-        "not_measured" in figures) else [
-        f"  gradient (mi.render + dr.backward, {figures['parameters']} parameters, "
-        f"{figures['entries']:,} entries)  {figures['gradient_s']:8.3f} s = "
-        f"{figures['ratio']:.1f} x the render ({figures['render_s']:.3f} s in those rounds;"
-        f" target 5 x); first {figures['first_gradient_s']:.3f} s",
+    eq, timing = figures.equal_error, figures.timing
+    lines = [f"  gradient: not measured: {figures.not_measured}"] if timing is None else [
+        f"  gradient (mi.render + dr.backward, {timing.parameters} parameters, "
+        f"{timing.entries:,} entries)  {timing.gradient_s:8.3f} s = "
+        f"{timing.ratio:.1f} x the render ({timing.render_s:.3f} s in those rounds;"
+        f" target 5 x); first {timing.first_gradient_s:.3f} s",
         "  gradient peak RSS: " + ", ".join(f"{res} px {mib:,.0f} MiB"
-                                          for res, mib in figures["peak_rss_mib"].items())]
+                                          for res, mib in figures.peak_rss_mib.items())]
     lines += [
-        f"  gradient at equal error against prb on {eq['scene']} at {eq['resolution']}^2"
-        f" ({eq['entries']} entries): whitted {eq['whitted_seconds']:.3f} s, rounding error "
-        f"{eq['whitted_rel_error']:.1e}; prb would need ~{eq['prb_spp_at_whitted_error']:.2g} spp, "
-        f"~{eq['prb_seconds_at_whitted_error']:.3g} s (extrapolated as 1/sqrt(spp))",
+        f"  gradient at equal error against prb on {eq.scene} at {eq.resolution}^2"
+        f" ({eq.entries} entries): whitted {eq.whitted_seconds:.3f} s, rounding error "
+        f"{eq.whitted_rel_error:.1e}; prb would need ~{eq.prb_spp_at_whitted_error:.2g} spp, "
+        f"~{eq.prb_seconds_at_whitted_error:.3g} s (extrapolated as 1/sqrt(spp))",
     ]
-    percent = eq["prb_at_one_percent"]
+    percent = eq.prb_at_one_percent
     if percent is not None:
-        lines.append(f"    prb first within 1%: {percent['spp']} spp, {percent['seconds']:.3f} s "
-                     f"({percent['seconds'] / eq['whitted_seconds']:.1f} x whitted's time)")
-    for row in eq["prb"]:
-        lines.append(f"    prb {row['spp']:6d} spp  {row['seconds']:7.3f} s  relative error "
-                     f"{row['rel_error']:.2e}")
+        lines.append(f"    prb first within 1%: {percent.spp} spp, {percent.seconds:.3f} s "
+                     f"({percent.seconds / eq.whitted_seconds:.1f} x whitted's time)")
+    for row in eq.prb:
+        lines.append(f"    prb {row.spp:6d} spp  {row.seconds:7.3f} s  relative error "
+                     f"{row.rel_error:.2e}")
     return lines

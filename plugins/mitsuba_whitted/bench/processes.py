@@ -12,6 +12,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 from ..system import proc_field, program_command
@@ -34,7 +35,15 @@ def peak_rss_mib() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KiB on Linux
 
 
-def fresh_process_render(scene_path: Path, defines: dict, empty_cache: bool) -> dict:
+@dataclass
+class ProcessTiming:
+    """A render in a process of its own: the whole process's wall time,
+    and the render time the command reports."""
+    process_seconds: float
+    render_seconds: float
+
+
+def fresh_process_render(scene_path: Path, defines: dict, empty_cache: bool) -> ProcessTiming:
     """Run ``mitsuba-whitted render`` in a child process, on the scene as
     a user renders it (``defines`` as ``-D``, no other settings); its wall
     time and the render time it reports. An empty kernel cache is a fresh
@@ -52,7 +61,7 @@ def fresh_process_render(scene_path: Path, defines: dict, empty_cache: bool) -> 
         result = _run_child(args, env=env)
         wall = time.perf_counter() - start
     render = float(re.findall(r" rendered and written in ([0-9.]+) s", result.stdout)[-1])
-    return {"process_seconds": wall, "render_seconds": render}
+    return ProcessTiming(wall, render)
 
 
 def child_peak_memory(scene_path: Path, defines: dict, settings: dict,

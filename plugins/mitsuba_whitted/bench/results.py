@@ -7,6 +7,9 @@ from dataclasses import dataclass
 
 from ..compare.intervals import json_data
 from .bound import Bound, LaunchSplit
+from .equal_error import EqualErrorFigures
+from .gradient_figures import GradientFigures
+from .processes import ProcessTiming
 from .timing import RenderTiming, ScalingRow
 
 
@@ -36,12 +39,12 @@ class BenchResults:
 
     machine: str
     headline: Headline
-    fresh_process: dict | None
-    fresh_process_empty_cache: dict | None
+    fresh_process: ProcessTiming | None
+    fresh_process_empty_cache: ProcessTiming | None
     peak_rss_mib: dict
     scaling: list[ScalingRow]
-    equal_error: dict
-    gradient: dict
+    equal_error: EqualErrorFigures
+    gradient: GradientFigures
 
 
 def results_json(results: BenchResults) -> dict:

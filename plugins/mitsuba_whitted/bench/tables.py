@@ -3,10 +3,12 @@ bench prints each part as soon as it is measured."""
 
 from __future__ import annotations
 
-from ..compare.intervals import Estimate, estimate_text, verdict_text
+from ..compare.intervals import estimate_text, verdict_text
 from ..compare.metrics import METRIC_NAMES
 from . import gradient_figures
 from .bound import CASTS, Bound, LaunchSplit
+from .equal_error import EqualErrorFigures, EqualErrorSetting
+from .processes import ProcessTiming
 from .results import BenchResults, Headline
 from .timing import ScalingRow
 
@@ -35,18 +37,13 @@ def _split_lines(split: LaunchSplit) -> list:
     ]
 
 
-def _seconds(estimate: dict) -> str:
-    """A median time and its interval."""
-    return estimate_text(Estimate.from_json(estimate), " s", 3)
-
-
-def _gain_text(row: dict, metric: str) -> str:
+def _gain_text(row: EqualErrorSetting, metric: str) -> str:
     """A setting's error, path's spp at that error and the speed-up, in ``metric``."""
-    error = row["whitted_rel_mse"] if metric == "relmse" else row["whitted_flip"]
-    path = row["path_at_equal_error"][metric]
+    error = row.whitted_rel_mse if metric == "relmse" else row.whitted_flip
+    path = row.path_at_equal_error[metric]
     return (f"\n      {METRIC_NAMES[metric]:<6} {error:.2e}: path "
-            f"{estimate_text(Estimate.from_json(path['spp']), ' spp', 3)} "
-            f"{path['sampler']}, {verdict_text(Estimate.from_json(row['speedup'][metric]))}")
+            f"{estimate_text(path.spp, ' spp', 3)} {path.sampler}, "
+            f"{verdict_text(row.speedup[metric])}")
 
 
 def _bound_lines(bound: Bound, split: LaunchSplit) -> list:
@@ -78,14 +75,14 @@ def headline_lines(machine: str, scene: Headline) -> list:
     ]
 
 
-def fresh_process_lines(fresh: dict, empty: dict) -> list:
+def fresh_process_lines(fresh: ProcessTiming, empty: ProcessTiming) -> list:
     """A whole render process, with the kernel cache warm and empty."""
     return [
-        f"  whole render process        {fresh['process_seconds']:8.3f} s  "
-        f"(render {fresh['render_seconds']:.3f} s, kernel cache warm; the scene as "
+        f"  whole render process        {fresh.process_seconds:8.3f} s  "
+        f"(render {fresh.render_seconds:.3f} s, kernel cache warm; the scene as "
         "`mitsuba-whitted render` renders it)",
-        f"  same, empty kernel cache    {empty['process_seconds']:8.3f} s  "
-        f"(render {empty['render_seconds']:.3f} s)",
+        f"  same, empty kernel cache    {empty.process_seconds:8.3f} s  "
+        f"(render {empty.render_seconds:.3f} s)",
     ]
 
 
@@ -100,18 +97,18 @@ def scaling_lines(rows: list[ScalingRow]) -> list:
         f"  {row.rays:>12,} rays  {row.rays_per_second / 1e6:6.2f} M rays/s" for row in rows]
 
 
-def equal_error_lines(eq: dict) -> list:
+def equal_error_lines(eq: EqualErrorFigures) -> list:
     """Whitted's settings against path at equal error, and the headline."""
     return [
-        f"  equal-error speed-up over path on {eq['scene']} at {eq['resolution']}^2 "
-        f"(reference {eq['reference_spp']} spp, its own noise relMSE "
-        f"{eq['reference_noise_rel_mse']:.1e}; {eq['rounds']} rounds):",
-        *(f"    {row['whitted']:<46} {_seconds(row['whitted_seconds'])}"
-          + "".join(_gain_text(row, metric) for metric in row["speedup"])
-          for row in eq["settings"]),
-        f"  headline: {eq['whitted']}, "
-        + ", ".join(f"{METRIC_NAMES[m]} {verdict_text(Estimate.from_json(s))}"
-                    for m, s in eq["speedup"].items()),
+        f"  equal-error speed-up over path on {eq.scene} at {eq.resolution}^2 "
+        f"(reference {eq.reference_spp} spp, its own noise relMSE "
+        f"{eq.reference_noise_rel_mse:.1e}; {eq.rounds} rounds):",
+        *(f"    {row.whitted:<46} {estimate_text(row.whitted_seconds, ' s', 3)}"
+          + "".join(_gain_text(row, metric) for metric in row.speedup)
+          for row in eq.settings),
+        f"  headline: {eq.headline.whitted}, "
+        + ", ".join(f"{METRIC_NAMES[m]} {verdict_text(s)}"
+                    for m, s in eq.headline.speedup.items()),
     ]
 
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .intervals import Estimate, bounded, quotient, spread, verdict
+from .intervals import Estimate, bounded, quotient, spread
 from .sweep import Sweep, SweepPoint
 
 
@@ -118,17 +118,6 @@ class Analysis:
         Whitted setting."""
         best = min(sweep.of_kind("whitted"), key=lambda p: p.error(metric))
         return best, self.gains[best.label][metric]
-
-
-def gains_json(gains: dict) -> dict:
-    """A Whitted setting's gains (by metric) as ``results.json`` holds
-    them: the speed-up, the verdict, and path's time, spp and sampler at
-    the setting's error."""
-    return {"speedup": {m: g.speedup.to_json() for m, g in gains.items()},
-            "verdict": {m: verdict(g.speedup) for m, g in gains.items()},
-            "path_at_equal_error": {m: {"seconds": g.path_seconds.to_json(),
-                                        "spp": g.path_spp.to_json(), "sampler": g.sampler}
-                                    for m, g in gains.items()}}
 
 
 def analyse(sweep: Sweep) -> Analysis:
