@@ -111,14 +111,17 @@ class CappedCylinder(mi.Mesh):
      * - center
        - |point|
        - Centre of the bottom cap, finite (default: (0, 0, 0))
+       - |exposed|
      * - radius
        - |float|
        - Radius, finite and > 0; placed in the world, the proxy's triangles
          must be 7e-18 to 2.9e17 long, what Mitsuba's float32 ray test can
          hit (default: 1)
+       - |exposed|
      * - height
        - |float|
        - Height along the axis, finite and > 0 (default: 1)
+       - |exposed|
      * - to_world
        - |transform|
        - Placement in the world, applied after ``center``/``radius``/
@@ -127,6 +130,7 @@ class CappedCylinder(mi.Mesh):
      * - segments
        - |int|
        - Number of sides of the proxy polygon, from 3 to 65536 (default: 64)
+       - |exposed|
 
     A closed cylinder standing on its bottom cap: in object space the solid
     ``x^2 + z^2 <= 1``, ``0 <= y <= 1`` (axis +y), placed in the world by
