@@ -54,18 +54,6 @@ class Estimate:
     high: float
     relation: str = "="
 
-    def to_json(self) -> dict:
-        """``median``, ``low``, ``high`` (``None`` where infinite: JSON has
-        no infinity) and ``relation``."""
-        return {"median": _finite_or_none(self.median), "low": _finite_or_none(self.low),
-                "high": _finite_or_none(self.high), "relation": self.relation}
-
-    @classmethod
-    def from_json(cls, values: dict) -> "Estimate":
-        median, low, high = (math.inf if values[key] is None else values[key]
-                             for key in ("median", "low", "high"))
-        return cls(median, low, high, values["relation"])
-
 
 def _finite_or_none(value: float) -> float | None:
     return None if math.isinf(value) else value
@@ -74,7 +62,7 @@ def _finite_or_none(value: float) -> float | None:
 def json_data(figures) -> dict:
     """Figures held in dataclasses (an :class:`Estimate` among them) as JSON
     data, by ``dataclasses.asdict``: an infinite number of a dataclass is
-    ``None``, as JSON has no infinity and :meth:`Estimate.to_json` writes."""
+    ``None``, as JSON has no infinity (an open end of an :class:`Estimate`)."""
     return asdict(figures, dict_factory=lambda items: {
         name: _finite_or_none(value) if isinstance(value, float) else value
         for name, value in items})
