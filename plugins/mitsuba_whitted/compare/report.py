@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ..files import write_atomically, write_text
-from ..imageio import write_image
+from ..imageio import write_image, write_pixels
 from .intervals import tile_sums
 from .metrics import TILE_SIDES
 
@@ -44,6 +44,19 @@ def worst_window(values: np.ndarray, side: int,
     row, column = divmod(int(np.argmax(sums)), columns)
     return tuple(int(np.clip(tile * index + tile // 2 - side // 2, 0, size - side))
                  for index, size in ((row, values.shape[0]), (column, values.shape[1])))
+
+
+def shared_vmax(maps: list[np.ndarray]) -> float:
+    """Top of one colour scale for all of ``maps``: their 99.5th percentile,
+    so that a few outliers do not leave every other value dark."""
+    return max(float(np.percentile(np.concatenate([m.ravel() for m in maps]), 99.5)), 1e-12)
+
+
+def colour_stops(cmap: str, count: int = 11) -> list[str]:
+    """``count`` colours evenly along the matplotlib colour map ``cmap``,
+    as CSS hex colours: enough for a page to draw its colour bar."""
+    colours = _pyplot().get_cmap(cmap)(np.linspace(0, 1, count))[:, :3]
+    return ["#" + "".join(f"{round(255 * c):02x}" for c in colour) for colour in colours]
 
 
 def number(value: float, digits: int = 3) -> str:
@@ -108,6 +121,14 @@ class MarkdownReport:
         """Write a linear float image (EXR) for exact recomputation."""
         path, link = self._target(name)
         write_image(path, np.asarray(image, dtype=np.float32)[..., :3])
+        return link
+
+    def colour_map(self, name: str, values: np.ndarray, vmax: float, cmap: str) -> str:
+        """A scalar map in false colour, pixel for pixel and without a
+        colour bar (a page draws that itself); its link."""
+        path, link = self._target(name)
+        colours = _pyplot().get_cmap(cmap)(np.clip(values / vmax, 0, 1))[..., :3]
+        write_pixels(path, np.round(colours * 255).astype(np.uint8))
         return link
 
     def heatmap(self, name: str, values: np.ndarray, label: str, vmax: float | None = None,

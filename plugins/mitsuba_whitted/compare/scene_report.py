@@ -37,9 +37,10 @@ from .reference import Reference, cached_reference, path_settings
 from .results import (CompareResults, ConvergedFigures, ConvergedRender, Crossing, FamilyThere,
                       LevelEntry, LevelsFigures, PathRung, PathThere, ReferenceFigures,
                       TimingFigures, WhittedFigures, gain_fields)
-from .report import Curve, MarkdownReport, Marker, Panel, number, worst_window
+from .report import Curve, MarkdownReport, Marker, Panel, number, shared_vmax, worst_window
 from .sweep import (Sweep, SweepPoint, path_ladder, run_sweep, sampler_sensors,
                     scene_whitted_settings, whitted_settings, whitted_variants)
+from .viewer import ViewerImage, ViewerTable, write_viewer
 
 REFERENCE_PASSES = 16
 #: Most samples per pixel: ``mi.render`` takes a 32-bit count.
@@ -267,17 +268,19 @@ def write_scene_report(out_dir: str | Path, comparison: SceneComparison,
 
 def _write_report(out_dir, scene_path, defines, reference, sweep, converged, results,
                   keep_linear):
-    report = MarkdownReport(out_dir, f"Whitted against path tracing: {scene_path.name}")
+    title = f"Whitted against path tracing: {scene_path.name}"
+    report = MarkdownReport(out_dir, title)
     height, width = reference.image.shape[:2]
     defined = ", ".join(f"{k}={v}" for k, v in (defines or {}).items())
     origin = "taken from the cache" if reference.cached else "rendered for this report"
-    report.paragraph(
+    summary = (
         f"Scene `{scene_path.name}`{f' ({defined})' if defined else ''}, {width} x {height} "
         f"pixels. Reference: Mitsuba's `path` (max_depth {path_settings()['max_depth']}), "
         f"{reference.spp} spp in {REFERENCE_PASSES} independent passes, {origin} "
         f"({reference.seconds:.1f} s to render); its own noise, estimated from the spread of "
         f"the passes, is a relMSE of {number(results.reference.noise_rel_mse)}. "
         f"{timing_sentence(results.timing.rounds)} Machine: {machine()}.")
+    report.paragraph(summary)
     if results.film_filter != "BoxFilter":
         report.paragraph(
             f"Note: the film's reconstruction filter is `{results.film_filter}`; the path "
@@ -289,10 +292,21 @@ def _write_report(out_dir, scene_path, defines, reference, sweep, converged, res
     report.figure(report.speed_plot("speed_vs_error.png", speed_panels(results),
                                     f"{scene_path.name}: error against time"),
                   "error against render time, relMSE and FLIP")
-    _image_grid(report, reference, sweep, converged, keep_linear)
+    shown = _image_grid(report, reference, sweep, converged, keep_linear)
     _missing_light(report, reference, sweep, results)
-    write_text(Path(out_dir) / "results.json", json.dumps(json_data(results), indent=1))
+    data = json_data(results)
+    write_text(Path(out_dir) / "results.json", json.dumps(data, indent=1))
+    write_viewer(report, title, summary, shown, data, viewer_tables(results))
     return report.write("report.md")
+
+
+def viewer_tables(results: CompareResults) -> list[ViewerTable]:
+    """The tables of the report, for its page."""
+    tables = [ViewerTable("Whitted settings", *whitted_rows(results)),
+              ViewerTable("Path's rungs", *path_rows(results))]
+    if results.levels.entries:
+        tables.append(ViewerTable("Level by level", *level_rows(results)))
+    return tables
 
 
 def timing_sentence(rounds: int) -> str:
@@ -334,15 +348,19 @@ def _error_tables(report, results):
     report.heading("Error and time")
     whitted_table(report, results)
     report.paragraph(f"{split_sentence(results.converged.side)} {speedup_sentence()}")
-    report.table(["path", "spp", "first render (s)", "warm render (s)", "relMSE", "RMSE",
-                  "FLIP"],
-                 [[sampler, rung.spp, number(rung.first_seconds),
-                   estimate_text(rung.seconds, digits=3), number(rung.rel_mse),
-                   number(rung.rmse), number(rung.flip)]
-                  for sampler, rungs in results.path.items() for rung in rungs])
+    report.table(*path_rows(results))
     for sentence in verdict_sentences(results):
         report.paragraph(sentence)
     levels_table(report, results)
+
+
+def path_rows(results: CompareResults) -> tuple[list[str], list[list]]:
+    """The header and rows of the table of path's rungs."""
+    return (["path", "spp", "first render (s)", "warm render (s)", "relMSE", "RMSE", "FLIP"],
+            [[sampler, rung.spp, number(rung.first_seconds),
+              estimate_text(rung.seconds, digits=3), number(rung.rel_mse), number(rung.rmse),
+              number(rung.flip)]
+             for sampler, rungs in results.path.items() for rung in rungs])
 
 
 def levels_sentence() -> str:
@@ -364,13 +382,18 @@ def levels_table(report: MarkdownReport, results: CompareResults) -> None:
                          f"{NOISE_MULTIPLE:g} is above {TOP_LEVEL:g}.")
         return
     report.paragraph(levels_sentence())
-    report.table(["relMSE level", "path there", "Whitted family there", "speed-up",
-                  f"{GOAL:g}x goal"],
-                 [[number(entry.error), _path_cell(entry.path), _family_cell(entry.whitted),
-                   "-" if entry.speedup is None else verdict_text(entry.speedup), entry.goal]
-                  for entry in levels.entries])
+    report.table(*level_rows(results))
     report.paragraph(f"The goal is met at {summary.met} of {summary.levels} levels; "
                      f"the family is faster at {summary.faster}.")
+
+
+def level_rows(results: CompareResults) -> tuple[list[str], list[list]]:
+    """The header and rows of the table of error levels."""
+    return (["relMSE level", "path there", "Whitted family there", "speed-up",
+             f"{GOAL:g}x goal"],
+            [[number(entry.error), _path_cell(entry.path), _family_cell(entry.whitted),
+              "-" if entry.speedup is None else verdict_text(entry.speedup), entry.goal]
+             for entry in results.levels.entries])
 
 
 def _path_cell(path: PathThere) -> str:
@@ -389,15 +412,19 @@ def _family_cell(whitted: FamilyThere) -> str:
 def whitted_table(report: MarkdownReport, results: CompareResults) -> None:
     """Each Whitted setting of ``results``: its times, its error split in
     each metric, its speed-up in each metric with interval and verdict."""
+    report.table(*whitted_rows(results))
+
+
+def whitted_rows(results: CompareResults) -> tuple[list[str], list[list]]:
+    """The header and rows of :func:`whitted_table`."""
     metrics = results.metrics
-    rows = [[label, number(entry.first_seconds), estimate_text(entry.seconds, digits=3)]
-            + [_split_cell(entry, metric) for metric in metrics]
-            + [_gain_cell(entry, metric) for metric in metrics]
-            for label, entry in results.whitted.items()]
-    report.table(["Whitted setting", "first render (s)", "warm render (s)"]
-                 + [f"{METRIC_NAMES[m]}: total / sampling / model bias" for m in metrics]
-                 + [f"speed-up at equal {METRIC_NAMES[m]}; path there" for m in metrics],
-                 rows)
+    return (["Whitted setting", "first render (s)", "warm render (s)"]
+            + [f"{METRIC_NAMES[m]}: total / sampling / model bias" for m in metrics]
+            + [f"speed-up at equal {METRIC_NAMES[m]}; path there" for m in metrics],
+            [[label, number(entry.first_seconds), estimate_text(entry.seconds, digits=3)]
+             + [_split_cell(entry, metric) for metric in metrics]
+             + [_gain_cell(entry, metric) for metric in metrics]
+             for label, entry in results.whitted.items()])
 
 
 def verdict_sentences(results: CompareResults) -> list[str]:
@@ -477,20 +504,26 @@ def _biases(results: CompareResults, metric: str) -> list[tuple[str, float]]:
 def _image_grid(report, reference, sweep, converged, keep_linear):
     """Every Whitted setting and three rungs of each path ladder at full
     size, each with its error map on one colour scale; then crops where
-    anti-aliasing matters most."""
+    anti-aliasing matters most. The images shown, the reference first, for
+    the report's page."""
     report.heading("Images and error maps")
     shown = sweep.of_kind("whitted") + shown_rungs(sweep)
     maps = [rel_squared_error(p.image, reference.image) for p in shown]
-    vmax = max(float(np.percentile(np.concatenate([m.ravel() for m in maps]), 99.5)), 1e-12)
-    report.figures([(report.image("reference.png", reference.image), "path reference")])
+    vmax = shared_vmax(maps)
+    link = report.image("reference.png", reference.image)
+    report.figures([(link, "path reference")])
+    images = [ViewerImage("path reference", "reference", "reference", link, reference.image)]
     for p, error in zip(shown, maps):
         name = slug(p.label)
         if keep_linear:
             report.linear(f"{name}.exr", p.image)
-        report.figures([(report.image(f"{name}.png", p.image), p.label),
+        link = report.image(f"{name}.png", p.image)
+        images.append(ViewerImage(p.label, p.kind, name, link, p.image))
+        report.figures([(link, p.label),
                         (report.heatmap(f"{name}_error.png", error, "relative squared error",
                                         vmax), f"{p.label}: error")])
     _crops(report, reference, sweep, converged)
+    return images
 
 
 def _crops(report, reference, sweep, converged):
