@@ -9,8 +9,10 @@ false-colour PNG, pixel for pixel, whose colour bar the page draws from the
 colours given in the data.
 
 Exposure is applied in the page to those 8-bit sRGB PNGs, in linear light:
-an SVG filter with ``color-interpolation-filters="linearRGB"`` decodes the
-sRGB curve, scales by 2^stops and encodes again, pixel by pixel. A page
+an SVG filter looks each 8-bit level up in a table that the script makes,
+the level decoded from sRGB, scaled by 2^stops and encoded again. (The
+filter's own ``linearRGB`` conversion would do the same through 8-bit
+linear values, which turns the darkest sRGB levels black.) A page
 opened from ``file://`` can neither fetch a binary file next to it nor read
 back the pixels of an image it drew on a canvas (the canvas is tainted), so
 float images would have to be inlined as text, a dozen megabytes per image

@@ -181,11 +181,24 @@ function listenForZoomAndPan(pane) {
   });
 }
 
-// Exposure in linear light, on images only (an error map keeps its colours).
+function srgbToLinear(value) {
+  return value <= 0.04045 ? value / 12.92 : ((value + 0.055) / 1.055) ** 2.4;
+}
+
+function linearToSrgb(value) {
+  const v = Math.min(Math.max(value, 0), 1);
+  return v <= 0.0031308 ? 12.92 * v : 1.055 * v ** (1 / 2.4) - 0.055;
+}
+
+// Exposure in linear light, on images only (an error map keeps its
+// colours): each of the 256 sRGB levels of a channel decoded, scaled by
+// 2^stops and encoded again, as the filter's lookup table.
 function applyExposure() {
-  const slope = String(2 ** state.exposure);
+  const gain = 2 ** state.exposure;
+  const table = Array.from({ length: 256 },
+    (_, level) => linearToSrgb(gain * srgbToLinear(level / 255)).toFixed(5)).join(" ");
   for (const func of document.querySelectorAll("#exposure-filter feComponentTransfer > *")) {
-    func.setAttribute("slope", slope);
+    func.setAttribute("tableValues", table);
   }
   for (const layer of document.querySelectorAll(".layer")) {
     const exposed = state.exposure !== 0 && layer.dataset.map === "no";
