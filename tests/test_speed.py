@@ -53,6 +53,9 @@ def test_the_section_holds_what_was_measured(tmp_path):
     assert written == json.loads(json.dumps(json_data(comparison.results)))
     assert f"(speed/{comparison.name}/report.md)" in text and "3.0 The goal" in text
     assert (scene_folder / "images" / "speed_vs_error.png").is_file()
+    # Its page too, linked from the section (tests/test_viewer.py opens one).
+    assert (scene_folder / "index.html").is_file()
+    assert f"(speed/{comparison.name}/index.html)" in text
 
 
 def test_path_against_itself_is_a_tie():

@@ -231,6 +231,8 @@ def write_speed_section(report: MarkdownReport, settings: SpeedSettings,
         result.report = write_scene_report(out, result, keep_linear=False)
         link = out.relative_to(report.directory).as_posix()
         report.heading(f"3.{index} [{result.scene_path.name}]({link}/report.md)", level=3)
+        report.paragraph(f"[Interactive page]({link}/index.html): the images wiped, flipped "
+                         "and zoomed, with their error maps, open as a file in a browser.")
         report.figure(f"{link}/images/speed_vs_error.png",
                       f"{result.scene_path.name}: relMSE and FLIP against time")
         whitted_table(report, result.results)

@@ -512,13 +512,13 @@ def _image_grid(report, reference, sweep, converged, keep_linear):
     vmax = shared_vmax(maps)
     link = report.image("reference.png", reference.image)
     report.figures([(link, "path reference")])
-    images = [ViewerImage("path reference", "reference", "reference", link, reference.image)]
+    images = [ViewerImage("path reference", "reference", link, reference.image)]
     for p, error in zip(shown, maps):
         name = slug(p.label)
         if keep_linear:
             report.linear(f"{name}.exr", p.image)
         link = report.image(f"{name}.png", p.image)
-        images.append(ViewerImage(p.label, p.kind, name, link, p.image))
+        images.append(ViewerImage(p.label, name, link, p.image))
         report.figures([(link, p.label),
                         (report.heatmap(f"{name}_error.png", error, "relative squared error",
                                         vmax), f"{p.label}: error")])

@@ -45,12 +45,11 @@ MAP_STYLES = {"relmse": ("inferno", "relative squared error"),
 
 @dataclass
 class ViewerImage:
-    """A render the page shows: its label, kind (``reference``,
-    ``whitted`` or ``path``), ``key`` (the name ``results.json`` gives its
-    image), link to its PNG and linear pixels (for its error maps)."""
+    """A render the page shows: its label, ``key`` (the name
+    ``results.json`` gives its image), link to its PNG and linear pixels
+    (for its error maps)."""
 
     label: str
-    kind: str
     key: str
     link: str
     pixels: np.ndarray
@@ -74,7 +73,7 @@ def write_viewer(report: MarkdownReport, title: str, summary: str, images: list[
     maps, scales = _error_maps(report, images)
     data = {"title": title, "summary": summary, "results": results,
             "metricNames": METRIC_NAMES, "scales": scales,
-            "images": [{"label": image.label, "kind": image.kind, "key": image.key,
+            "images": [{"label": image.label, "key": image.key,
                         "src": image.link, "maps": maps.get(image.key, {})}
                        for image in images],
             "tables": [vars(table) for table in tables]}
