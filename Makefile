@@ -4,7 +4,8 @@
 # Both create .venv, install the pinned packages and make sure a libLLVM that
 # Dr.Jit can use is present (installing libllvm19 with apt-get when possible).
 # make test also installs Ray (the optional [cluster] extra), which the
-# tests of the distributed backends need.
+# tests of the distributed backends need, and Debian's chromium, which the
+# browser tests of compare's page drive through Playwright.
 
 PYTHON ?= python3
 VENV   := .venv
@@ -12,7 +13,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 CLUSTER_STAMP := $(VENV)/.installed-cluster
 
-.PHONY: all render test validate bench llvm clean
+.PHONY: all render test validate bench llvm browser clean
 
 all: render
 
@@ -33,7 +34,10 @@ render: llvm
 	mkdir -p renders
 	$(PY) -m mitsuba_whitted.cli render scenes/cosc363.xml -o renders/cosc363.png
 
-test: llvm $(CLUSTER_STAMP)
+browser:
+	@bash .ci/ensure-chromium.sh
+
+test: llvm browser $(CLUSTER_STAMP)
 	$(PY) -m pytest -q
 
 validate: llvm
