@@ -67,3 +67,21 @@ def test_an_existing_file_wins_over_a_shipped_name(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     (tmp_path / "cosc363").write_text("<scene version='3.0.0'/>")
     assert scenes.resolve("cosc363") == tmp_path.joinpath("cosc363").relative_to(tmp_path)
+
+
+#: The kinds of object that mi.traverse names by id, or by a number that
+#: differs from process to process when there is none.
+NAMED_KINDS = {"integrator", "sensor", "emitter", "shape", "bsdf", "texture"}
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_every_object_of_a_shipped_scene_has_an_id(name):
+    import xml.etree.ElementTree as ElementTree
+
+    elements = [e for e in ElementTree.parse(scenes.path(name)).iter() if e.tag in NAMED_KINDS]
+    assert [e.tag for e in elements if "id" not in e.attrib] == []
+    ids = [e.attrib["id"] for e in elements]
+    assert len(ids) == len(set(ids))
+    mitsuba_whitted.set_variant()
+    keys = mi.traverse(scenes.load(name, res=8)).keys()
+    assert not [key for key in keys if key.startswith("object_")]
