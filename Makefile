@@ -1,8 +1,9 @@
 # Two commands do all set-up on a fresh machine:
 #   make render   renders the report's scene into renders/
 #   make test     runs the whole test suite
-# Both create .venv, install the pinned packages and make sure a libLLVM that
-# Dr.Jit can use is present (installing libllvm19 with apt-get when possible).
+# Both create .venv, install the packages at the versions constraints.txt
+# pins and make sure a libLLVM that Dr.Jit can use is present (installing
+# libllvm19 with apt-get when possible).
 # make test also installs Ray (the optional [cluster] extra), which the
 # tests of the distributed backends need, and Debian's chromium, which the
 # browser tests of compare's page drive through Playwright.
@@ -17,14 +18,14 @@ CLUSTER_STAMP := $(VENV)/.installed-cluster
 
 all: render
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[test,validate]'
+	$(PY) -m pip install --quiet -c constraints.txt -e '.[test,validate]'
 	touch $(STAMP)
 
 $(CLUSTER_STAMP): $(STAMP)
-	$(PY) -m pip install --quiet -e '.[cluster]'
+	$(PY) -m pip install --quiet -c constraints.txt -e '.[cluster]'
 	touch $(CLUSTER_STAMP)
 
 llvm: $(STAMP)

@@ -77,3 +77,14 @@ def test_whitted_is_told_apart_from_other_integrators_in_every_variant():
     assert type(after) is not type(before)
     assert is_whitted(before) and is_whitted(after)
     assert not is_whitted(mi.load_dict({"type": "path"})) and not is_whitted(None)
+
+
+def test_the_mitsuba_entry_point_names_this_package():
+    """Mitsuba 3.10 imports the module that each ``mitsuba`` entry point
+    names when a variant becomes active (mitsuba3 PR #1943, in the form
+    ``name = "module"``); 3.9.1 ignores the group, hence the explicit import."""
+    from importlib.metadata import entry_points
+
+    found = [ep for ep in entry_points(group="mitsuba") if ep.dist.name == "mitsuba-whitted"]
+    assert [(ep.name, ep.value) for ep in found] == [("whitted", "mitsuba_whitted")]
+    assert found[0].load() is mitsuba_whitted

@@ -578,6 +578,28 @@ def test_a_reused_integrator_follows_a_bsdf_whose_lobes_change():
 
 
 @pytest.mark.parametrize("max_depth", [10, -1], ids=["depth-first tracer", "wavefront tracer"])
+def test_a_reused_integrator_follows_a_plain_number_parameter(max_depth):
+    """A dielectric's ``eta`` is a plain number, which a frozen kernel
+    records as a constant: updated through ``mi.traverse``, the next render
+    is what a scene loaded with that index gives (the kept tracer's kernels
+    showed the old index)."""
+    def loaded(ior):
+        description = glass_scene()
+        description["object_2"]["bsdf"].update(int_ior=ior, ext_ior=1.0)
+        return mi.load_dict(dict(description, integrator=integrator(max_depth=max_depth)))
+
+    changed = loaded(1.5)
+    before = np.array(mi.render(changed))
+    params = mi.traverse(changed)
+    key = next(k for k in params.keys() if k.endswith("bsdf.eta"))
+    params[key] = 1.2
+    params.update()
+    after = np.array(mi.render(changed))
+    assert not np.array_equal(before, after), "the index must change the image"
+    np.testing.assert_array_equal(after, np.array(mi.render(loaded(1.2))))
+
+
+@pytest.mark.parametrize("max_depth", [10, -1], ids=["depth-first tracer", "wavefront tracer"])
 def test_a_rendered_scene_is_freed_when_dropped(max_depth):
     """The integrator keeps its tracer for the next render, and the scene
     keeps the integrator: a tracer holding the scene, or its frozen kernels

@@ -14,7 +14,7 @@ variant, and again after each ``mi.set_variant``, whichever comes first::
     import mitsuba as mi
     import mitsuba_whitted
     mi.set_variant("llvm_ad_rgb")
-    scene = mi.load_file("scenes/cosc363.xml")
+    scene = mitsuba_whitted.scenes.load("cosc363", res=300)
     image = mi.render(scene)
 
 A usable libLLVM is chosen before Dr.Jit loads one (see :mod:`.llvm`), and
@@ -60,6 +60,7 @@ import mitsuba as mi  # noqa: E402  (after the libLLVM choice)
 
 from .checked_loading import LOADERS, checked_loader  # noqa: E402
 from .checked_render import checked  # noqa: E402
+from . import scenes  # noqa: E402,F401  (mitsuba_whitted.scenes.load: the shipped scenes)
 from .scene_files import check_films, check_images, parse  # noqa: E402
 
 

@@ -4,7 +4,11 @@
     mitsuba-whitted render-many SCENE.xml... --out DIR [--workers N] [--cluster ADDRESS] [-D ...]
     mitsuba-whitted compare SCENE.xml [--out DIR] [--reference-spp N] [--quick]
                             [--workers N] [--cluster ADDRESS] [-D ...]
+    mitsuba-whitted bench [SCENE.xml] [--quick] [--json FILE] [-D ...]
     mitsuba-whitted info
+
+SCENE.xml may also be the name of a scene the package ships (``cosc363``,
+see :mod:`.scenes`).
 """
 
 from __future__ import annotations
@@ -15,7 +19,7 @@ import time
 
 import mitsuba as mi
 
-from . import files
+from . import files, scenes
 from .command import CommandParser, add_cluster_options, count, run_command
 from .errors import UsageError
 from .integrators.settings import is_whitted
@@ -37,7 +41,16 @@ def _parse_defines(pairs: list[str]) -> dict:
 def _load_scene(path: str, defines: dict):
     import mitsuba_whitted
 
-    return mitsuba_whitted.load_file(files.check_readable(path), **defines)
+    return mitsuba_whitted.load_file(path, **defines)
+
+
+def _scene_arguments(args) -> None:
+    """Every SCENE argument of ``args`` as the file it names (a path, or a
+    shipped scene's name), so the commands read files only."""
+    if getattr(args, "scene", None) is not None:
+        args.scene = scenes.resolve(args.scene)
+    if getattr(args, "scenes", None) is not None:
+        args.scenes = [scenes.resolve(scene) for scene in args.scenes]
 
 
 def command_render(args) -> int:
@@ -157,7 +170,7 @@ def command_bench(args) -> int:
     if args.json:
         files.check_writable(args.json)
     mitsuba_whitted.set_variant(args.variant)
-    scene = files.check_readable(args.scene or bench.DEFAULT_SCENE)
+    scene = args.scene or bench.DEFAULT_SCENE
     defines = _parse_defines(args.define)
     if args.json:
         check_not_read([args.json], scene, defines)
@@ -191,6 +204,10 @@ BENCH_DESCRIPTION = (
     "against path 90 s, gradients 50 s. --quick takes about 20 s.")
 
 
+#: What a SCENE argument may be (see :func:`.scenes.resolve`).
+SCENE_HELP = "Mitsuba scene file (XML), or a shipped scene's name (cosc363, glass_box, ...)"
+
+
 def build_parser() -> argparse.ArgumentParser:
     from . import DEFAULT_VARIANT
 
@@ -200,7 +217,7 @@ def build_parser() -> argparse.ArgumentParser:
     commands = parser.add_subparsers(dest="command", required=True)
 
     render = commands.add_parser("render", help="render a scene to an image")
-    render.add_argument("scene", help="Mitsuba scene file (XML)")
+    render.add_argument("scene", help=SCENE_HELP)
     render.add_argument("-o", "--output", required=True,
                         help="output image (.png, .jpg, .exr, .hdr, .pfm)")
     _add_scene_options(render)
@@ -208,7 +225,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     compare = commands.add_parser(
         "compare", help="whitted against Mitsuba's path tracer: images, errors, times, report")
-    compare.add_argument("scene", help="Mitsuba scene file (XML)")
+    compare.add_argument("scene", help=SCENE_HELP)
     compare.add_argument("--out", help="report directory (default compare-SCENE); the path "
                          "reference is cached in OUT/cache")
     compare.add_argument("--reference-spp", type=count,
@@ -222,7 +239,7 @@ def build_parser() -> argparse.ArgumentParser:
     many = commands.add_parser(
         "render-many", help="render many scenes or frames, one image each, on one machine "
         "or a Ray cluster")
-    many.add_argument("scenes", nargs="+", metavar="SCENE", help="Mitsuba scene files (XML)")
+    many.add_argument("scenes", nargs="+", metavar="SCENE", help=SCENE_HELP)
     many.add_argument("--out", required=True, help="directory of the images, "
                       "OUT/<scene file's stem>.<format>")
     many.add_argument("--format", default="exr", choices=["exr", "hdr", "pfm", "png", "jpg"],
@@ -234,7 +251,8 @@ def build_parser() -> argparse.ArgumentParser:
     bench_ = commands.add_parser(
         "bench", help="speed, ray-casting bound, memory and scaling, measured in one run",
         description=BENCH_DESCRIPTION)
-    bench_.add_argument("scene", nargs="?", help="scene (default: scenes/cosc363.xml)")
+    bench_.add_argument("scene", nargs="?", help=f"{SCENE_HELP} (default: cosc363, the "
+                        "report's scene)")
     bench_.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
     bench_.add_argument("--quick", action="store_true", help="small sizes, few repeats")
     _add_scene_options(bench_)
@@ -248,7 +266,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    return run_command(args.run, args)
+    return run_command(_run, args)
+
+
+def _run(args) -> int:
+    _scene_arguments(args)
+    return args.run(args)
 
 
 if __name__ == "__main__":

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import mitsuba as mi
 
+from .. import scenes
 from ..errors import UsageError
 from ..integrators.settings import is_whitted
 from ..overrides import load_with
@@ -20,7 +21,8 @@ from ..jit import release_scenes
 from ..progress import Progress
 from .timing import scaling_table, time_render
 
-DEFAULT_SCENE = Path(__file__).resolve().parents[3] / "scenes" / "cosc363.xml"
+#: The report's scene, as the package ships it.
+DEFAULT_SCENE = scenes.path(scenes.REPORT)
 
 
 @dataclass

@@ -58,3 +58,14 @@ def identity(scene: mi.Scene) -> tuple:
     emitters and sensors (none of which refers back to the scene),
     compared object by object."""
     return tuple(scene.shapes()), tuple(scene.emitters()), tuple(scene.sensors())
+
+
+def plain_values(scene: mi.Scene) -> tuple:
+    """The scene's traversed parameters that are plain Python values (a
+    dielectric's ``eta``, a sensor's ``near_clip``): a frozen kernel records
+    them as constants, unlike arrays, which reach it as arguments, so an
+    update of one through ``mi.traverse`` must lead to a new tracer."""
+    params = mi.traverse(scene)
+    values = ((key, params[key]) for key in params.keys())
+    return tuple((key, value) for key, value in values
+                 if isinstance(value, (bool, int, float, str)))

@@ -28,7 +28,7 @@ from .render_plan import Demand, RenderPlan, plan_render
 from .render_progress import RenderProgress
 from .scene_checks import check_emitters, check_placements
 from .scene_needs import SceneNeeds, analyse
-from .scene_ref import identity
+from .scene_ref import identity, plain_values
 from .settings import (AA_MODES, PLUGIN_NAME, SETTINGS, SHADOW_MODES, UNBOUNDED_DEPTH, Exposed,
                        read_settings, require_supported_variant, seed_value, validate)
 from .shading import MAX_TREE_RAYS, TreeSettings
@@ -220,14 +220,16 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     def _tracer_for(self, scene: mi.Scene, seed: int):
         """The last render's tracer if nothing it was built from changed
         (the scene's objects, what the scene needs, the seed, this
-        integrator's parameters), so that its frozen kernels replay rather
-        than being recorded again; else a new one. Scene data the kernels
-        read (parameters updated through ``mi.traverse``) reach them as
-        arguments either way. The tracer reads ``scene`` only while
+        integrator's parameters, the scene's plain-number parameters), so
+        that its frozen kernels replay rather than being recorded again;
+        else a new one. Scene arrays the kernels read (parameters updated
+        through ``mi.traverse``) reach them as arguments either way; plain
+        numbers (a dielectric's ``eta``) are constants of the kernels
+        (:func:`.scene_ref.plain_values`). The tracer reads ``scene`` only while
         ``render`` holds it in the tracer's ``scene_ref``."""
         needs = analyse(scene)
         built_from = (identity(scene), needs, seed, self.capture_rays,
-                      self._parameter_values())
+                      self._parameter_values(), plain_values(scene))
         if self._state.built_from == built_from:
             self._state.tracer.reload()
             return self._state.tracer
