@@ -44,9 +44,13 @@ def _load_scene(path: str, defines: dict):
     return mitsuba_whitted.load_file(path, **defines)
 
 
-def _scene_arguments(args) -> None:
-    """Every SCENE argument of ``args`` as the file it names (a path, or a
-    shipped scene's name), so the commands read files only."""
+def _resolve_arguments(args) -> None:
+    """The ``-D`` pairs as a dictionary (``args.defines``), and every SCENE
+    argument of ``args`` as the file it names (a path, or a shipped scene's
+    name), so the commands read files only: the arguments' own form is
+    checked before any file."""
+    if getattr(args, "define", None) is not None:
+        args.defines = _parse_defines(args.define)
     if getattr(args, "scene", None) is not None:
         args.scene = scenes.resolve(args.scene)
     if getattr(args, "scenes", None) is not None:
@@ -61,7 +65,7 @@ def command_render(args) -> int:
 
     check_image_path(args.output)
     mitsuba_whitted.set_variant(args.variant)
-    defines = _parse_defines(args.define)
+    defines = args.defines
     check_not_read([args.output], args.scene, defines)
     started = time.perf_counter()
     scene = _load_scene(args.scene, defines)
@@ -134,7 +138,7 @@ def command_compare(args) -> int:
     out = check_report_folder(args.out or f"compare-{Path(args.scene).stem}")
     mitsuba_whitted.set_variant(args.variant)
     with backend(args.workers, args.cluster) as runner:
-        result = compare_scene(args.scene, out, options, _parse_defines(args.define),
+        result = compare_scene(args.scene, out, options, args.defines,
                                progress=Progress(), backend=runner)
     crossing = result.results.crossing["relmse"]
     print(f"{result.report}: reference {result.reference.spp} spp"
@@ -153,7 +157,7 @@ def command_render_many(args) -> int:
     started = time.perf_counter()
     progress = Progress()
     with backend(args.workers, args.cluster) as runner:
-        written = render_many(args.scenes, args.out, _parse_defines(args.define), runner,
+        written = render_many(args.scenes, args.out, args.defines, runner,
                               progress, f".{args.format}")
     progress.finish()
     print(f"{args.out}: {len(written)} images in {time.perf_counter() - started:.1f} s "
@@ -171,7 +175,7 @@ def command_bench(args) -> int:
         files.check_writable(args.json)
     mitsuba_whitted.set_variant(args.variant)
     scene = args.scene or bench.DEFAULT_SCENE
-    defines = _parse_defines(args.define)
+    defines = args.defines
     if args.json:
         check_not_read([args.json], scene, defines)
     settings = (bench.BenchSettings.quick(scene, defines) if args.quick
@@ -270,7 +274,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _run(args) -> int:
-    _scene_arguments(args)
+    _resolve_arguments(args)
     return args.run(args)
 
 
