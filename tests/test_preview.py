@@ -283,3 +283,11 @@ def test_a_drag_moves_the_camera(page, server):
     assert server.status()["lookat"] != lookat
     page.click("#reset")
     server.wait(lambda status: status["lookat"] == lookat)
+
+
+def test_every_interface_is_warned_about(scene, tmp_path):
+    with preview(scene, "--host", "0.0.0.0", cwd=tmp_path, env=ENV) as running:
+        warning = running.process.stderr.readline()
+        assert warning.startswith("warning: --host 0.0.0.0 serves the preview on every "
+                                  "network interface")
+        assert running.status()["state"] in ("rendering", "ready")
