@@ -5,6 +5,7 @@
     mitsuba-whitted compare SCENE.xml [--out DIR] [--reference-spp N] [--quick]
                             [--workers N] [--cluster ADDRESS] [-D ...]
     mitsuba-whitted bench [SCENE.xml] [--quick] [--json FILE] [-D ...]
+    mitsuba-whitted preview SCENE.xml [-D ...] [--port N] [--host ADDR] [--no-browser]
     mitsuba-whitted info
 
 SCENE.xml may also be the name of a scene the package ships (``cosc363``,
@@ -188,6 +189,21 @@ def command_bench(args) -> int:
     return 0
 
 
+def command_preview(args) -> int:
+    import mitsuba_whitted
+    from .preview import serve
+
+    mitsuba_whitted.set_variant(args.variant)
+    return serve(args.scene, args.defines, args.host, args.port, not args.no_browser)
+
+
+def _port(text: str) -> int:
+    """An argument's type: a TCP port, 0 for a free one."""
+    if not text.isdigit() or int(text) > 65535:
+        raise argparse.ArgumentTypeError(f"expected a port from 0 to 65535, got '{text}'")
+    return int(text)
+
+
 def _add_scene_options(parser: argparse.ArgumentParser) -> None:
     """Options every scene-reading command shares."""
     from . import DEFAULT_VARIANT
@@ -261,6 +277,18 @@ def build_parser() -> argparse.ArgumentParser:
     bench_.add_argument("--quick", action="store_true", help="small sizes, few repeats")
     _add_scene_options(bench_)
     bench_.set_defaults(run=command_bench)
+
+    preview = commands.add_parser(
+        "preview", help="a live view of a scene in the browser, re-rendered as its files change")
+    preview.add_argument("scene", help="Mitsuba scene file (XML)")
+    preview.add_argument("--port", type=_port, default=0,
+                         help="port to listen on (default: a free one)")
+    preview.add_argument("--host", default="127.0.0.1",
+                         help="address to listen on (default 127.0.0.1, this machine only)")
+    preview.add_argument("--no-browser", action="store_true",
+                         help="print the URL without opening a browser")
+    _add_scene_options(preview)
+    preview.set_defaults(run=command_preview)
 
     info = commands.add_parser("info", help="variant, libLLVM and plugins")
     info.add_argument("--variant", default=DEFAULT_VARIANT)

@@ -84,6 +84,17 @@ def write_pixels(path: str | Path, pixels: np.ndarray) -> None:
         encoder.save()
 
 
+def png_bytes(pixels: np.ndarray) -> bytes:
+    """A PNG of 8-bit ``pixels`` (height, width, channels), made in memory
+    by Mitsuba's bitmap writer at its fastest compression, for a page that
+    waits for each image."""
+    import mitsuba as mi
+
+    stream = mi.MemoryStream()
+    mi.Bitmap(np.ascontiguousarray(pixels)).write(stream, mi.Bitmap.FileFormat.PNG, 1)
+    return bytes(stream.raw_buffer())
+
+
 def stored_pixels(path: Path, image: np.ndarray) -> np.ndarray:
     """Linear pixels (height, width, channels) as the format of ``path``
     stores them (see the module's docstring): 8-bit sRGB with linear alpha
