@@ -25,7 +25,7 @@ from pathlib import Path
 import mitsuba as mi
 import numpy as np
 
-from ..errors import one_sentence
+from ..errors import Error, one_sentence
 from ..imageio import png_bytes, stored_pixels, write_image
 from ..integrators.settings import AA_MODES, is_whitted
 from ..scene_files import files_read
@@ -40,8 +40,12 @@ SCENE_AA = "scene"
 _SHOWN_AS = Path("shown.jpg")
 
 
-class Superseded(Exception):
-    """A newer request came while a render ran."""
+class Superseded(Error):
+    """A newer request came while a render ran: the render stops after its
+    band, and nobody sees this sentence."""
+
+    def __init__(self, message: str = "a newer request came while the render ran."):
+        super().__init__(message, "mitsuba-whitted preview")
 
 
 class Session:
