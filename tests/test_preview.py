@@ -18,8 +18,10 @@ import urllib.error
 import numpy as np
 import pytest
 
-from conftest import ROOT, cli, one_line
+import mitsuba_whitted
+from conftest import ROOT, cli, limit_whitted, one_line
 from mitsuba_whitted.preview.measure import preview
+from mitsuba_whitted.preview.session import Superseded, _rows
 
 CHROMIUM = shutil.which("chromium")
 needs_chromium = pytest.mark.skipif(
@@ -291,3 +293,30 @@ def test_every_interface_is_warned_about(scene, tmp_path):
         assert warning.startswith("warning: --host 0.0.0.0 serves the preview on every "
                                   "network interface")
         assert running.status()["state"] in ("rendering", "ready")
+
+
+def test_a_render_overtaken_by_a_newer_request_stops_after_its_band(monkeypatch):
+    """A render in flight when a newer request comes finishes the band it
+    is in and goes no further; one that stays the newest gives the whole
+    image."""
+    limit_whitted(monkeypatch, band_samples=4 * 16, typical_samples=1)  # bands of 4 rows
+    loaded = mitsuba_whitted.load_file(str(ROOT / "scenes" / "cases" / "mirror_chain.xml"),
+                                       res="16")
+    integrator = loaded.integrator()
+
+    class Requests:
+        """The render's request stays the newest for ``answers`` questions."""
+
+        def __init__(self, answers):
+            self.answers, self.asked = answers, 0
+
+        def is_newest(self, request):
+            self.asked += 1
+            return self.asked <= self.answers
+
+    whole = _rows(integrator, loaded, Requests(answers=10**6), 1)
+    assert whole.shape[:2] == (16, 16) and integrator.last_stats["bands"] == 4
+    overtaken = Requests(answers=2)  # asked before the render and after its first band
+    with pytest.raises(Superseded):
+        _rows(integrator, loaded, overtaken, 1)
+    assert overtaken.asked == 3  # stopped after the second band, of four
