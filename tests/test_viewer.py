@@ -7,6 +7,7 @@ moves, and blocks of identical pixels where one image pixel is enlarged.
 """
 
 import io
+import os
 import shutil
 
 import numpy as np
@@ -22,14 +23,17 @@ SCENE = ROOT / "scenes" / "cases" / "mirror_chain.xml"
 RESOLUTION = 32
 
 
-@pytest.fixture(scope="module")
-def report(tmp_path_factory):
-    """The folder of a quick comparison of a small scene."""
-    out = tmp_path_factory.mktemp("compare")
+def compare(out, env=None):
+    """``out``, the folder of a quick comparison of a small scene."""
     result = cli("compare", str(SCENE), "-D", f"res={RESOLUTION}", "--quick", "--out", str(out),
-                 timeout=300)
+                 env=env, timeout=300)
     assert result.returncode == 0, result.stderr
     return out
+
+
+@pytest.fixture(scope="module")
+def report(tmp_path_factory):
+    return compare(tmp_path_factory.mktemp("compare"))
 
 
 @pytest.fixture(scope="module")
@@ -44,17 +48,23 @@ def browser():
 
 @pytest.fixture
 def page(browser, report):
-    """The page, loaded with its images; ``page.errors`` collects what the
-    console reports as errors and the exceptions the page raises."""
+    opened = open_page(browser, report)
+    yield opened
+    opened.close()
+
+
+def open_page(browser, folder):
+    """The page of ``folder``, loaded with its images; ``page.errors``
+    collects what the console reports as errors and the exceptions the page
+    raises."""
     opened = browser.new_page(viewport={"width": 1200, "height": 900})
     opened.errors = []
     opened.on("console", lambda message: message.type == "error"
               and opened.errors.append(message.text))
     opened.on("pageerror", lambda error: opened.errors.append(str(error)))
-    opened.goto((report / "index.html").as_uri())
+    opened.goto((folder / "index.html").as_uri())
     opened.wait_for_function("[...document.images].every(image => image.complete)")
-    yield opened
-    opened.close()
+    return opened
 
 
 def choose(page, selector: str, value) -> None:
@@ -155,3 +165,21 @@ def test_exposure_brightens_the_image_only(page):
     assert page.evaluate("getComputedStyle(document.querySelector('.layer')).filter") == "none"
     assert page.is_visible("#colour-bar")
     assert page.errors == []
+
+
+def test_without_flip_the_page_shows_relmse_and_says_why(browser, tmp_path):
+    """Where the flip-evaluator package cannot be imported, as on a plain
+    install: relMSE maps only, a note that says so, and no error."""
+    stub = tmp_path / "no_flip" / "flip_evaluator"
+    stub.mkdir(parents=True)
+    (stub / "__init__.py").write_text("raise ImportError('No module named flip_evaluator')\n")
+    path = os.pathsep.join(filter(None, [str(stub.parent), os.environ.get("PYTHONPATH")]))
+    folder = compare(tmp_path / "report", env=dict(os.environ, PYTHONPATH=path))
+    page = open_page(browser, folder)
+    try:
+        layers = page.eval_on_selector_all("#layer option", "options => options.map(o => o.value)")
+        assert layers == ["image", "relmse"]
+        assert "FLIP is not available here" in page.inner_text("#note")
+        assert min(loaded_widths(page)) > 0 and page.errors == []
+    finally:
+        page.close()
