@@ -161,7 +161,15 @@ def test_exposure_brightens_the_image_only(page):
     after = pixels(page)
     # Black stays black, and so does the pane around the image.
     assert np.all(after >= before - 1) and np.any(after > before + 16)
+    page.hover("#plot circle.point >> nth=-1")  # the plot's preview takes it too
+    tip = pixels(page, "#tip img")
+    slide(page, "#exposure", 0)
+    page.mouse.move(0, 0)
+    page.hover("#plot circle.point >> nth=-1")
+    unexposed = pixels(page, "#tip img")
+    assert np.all(tip >= unexposed - 1) and np.any(tip > unexposed + 16)
     choose(page, "#layer", "relmse")
+    slide(page, "#exposure", 2)
     assert page.evaluate("getComputedStyle(document.querySelector('.layer')).filter") == "none"
     assert page.is_visible("#colour-bar")
     assert page.errors == []

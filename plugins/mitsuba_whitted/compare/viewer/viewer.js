@@ -411,6 +411,7 @@ function showTip(point, dot) {
     const img = element("img", "", tip);
     img.src = data.images[found].src;
     img.alt = data.images[found].label;
+    img.style.filter = state.exposure !== 0 ? "url(#exposure-filter)" : "";
   } else {
     element("div", "", tip).textContent = "(no image kept for this rung)";
   }
