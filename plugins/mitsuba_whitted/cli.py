@@ -26,7 +26,7 @@ from .errors import UsageError
 from .integrators.settings import is_whitted
 from .interrupt import last_write
 from .progress import Progress
-from .scene_files import check_not_read
+from .scene_files import check_not_read, first_sensor
 
 
 def _parse_defines(pairs: list[str]) -> dict:
@@ -72,9 +72,7 @@ def command_render(args) -> int:
     scene = _load_scene(args.scene, defines)
     loaded = time.perf_counter()
     integrator = scene.integrator()
-    if not scene.sensors():
-        raise UsageError(f"scene '{args.scene}' has no sensor to render "
-                         "from; add a <sensor>.")
+    sensor = first_sensor(scene, args.scene)
     progress = Progress()
     if is_whitted(integrator):
         integrator.progress = progress
@@ -87,7 +85,7 @@ def command_render(args) -> int:
             write_image(args.output, image.numpy())
     rendered = time.perf_counter()
     progress.finish()
-    width, height = scene.sensors()[0].film().crop_size()
+    width, height = sensor.film().crop_size()
     seconds = rendered - loaded
     stats = getattr(integrator, "last_stats", {})
     rays = stats.get("total")

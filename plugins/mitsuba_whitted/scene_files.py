@@ -19,7 +19,7 @@ from pathlib import Path
 
 import mitsuba as mi
 
-from .errors import ParameterError
+from .errors import ParameterError, UsageError
 from .files import ReadError, cannot_write, check_readable
 from .imageio import image_refusal
 from .system import shown
@@ -81,6 +81,14 @@ def nodes_naming_files(state, path: str | Path):
         name = node.props.get("filename")
         if isinstance(name, str):
             yield node, [folder / name for folder in folders if (folder / name).is_file()]
+
+
+def first_sensor(scene: mi.Scene, path: str | Path) -> mi.Sensor:
+    """The sensor a command renders the scene loaded from ``path`` from:
+    its first; a :class:`UsageError` where it has none."""
+    if not scene.sensors():
+        raise UsageError(f"scene '{path}' has no sensor to render from; add a <sensor>.")
+    return scene.sensors()[0]
 
 
 def check_images(state, path: str | Path) -> None:

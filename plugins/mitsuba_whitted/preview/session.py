@@ -28,7 +28,7 @@ import numpy as np
 from ..errors import Error, one_sentence
 from ..imageio import png_bytes, stored_pixels, write_image
 from ..integrators.settings import AA_MODES, is_whitted
-from ..scene_files import files_read
+from ..scene_files import files_read, first_sensor
 from .orbit import Orbit
 
 #: The integrator settings the page's controls change (``aa`` apart).
@@ -189,9 +189,7 @@ class Session:
         except Exception:
             self.watch([self.path])  # what is broken, the load below says
         scene = mitsuba_whitted.load_file(self.path, **self.defines)
-        sensor = scene.sensors()[0] if scene.sensors() else None
-        if sensor is None:
-            raise ValueError(f"scene '{self.path}' has no sensor to render from; add a <sensor>.")
+        sensor = first_sensor(scene, self.path)
         matrix = np.array(mi.traverse(sensor)["to_world"].matrix, np.float64)[..., 0]
         integrator = scene.integrator()
         with self._changed:
