@@ -54,8 +54,14 @@ class ShadowTester(ReadsScene):
     :mod:`.indirect`). An analytic shape blocks only where its exact
     surface is, in every mode."""
 
-    def __init__(self, scene_ref: SceneRef, needs: SceneNeeds, shadows: str, intersect):
+    def __init__(self, scene_ref: SceneRef, needs: SceneNeeds, shadows: str, intersect,
+                 by_parts: bool = False):
         self.scene_ref = scene_ref
+        #: Whether the march through pass-through surfaces carries its
+        #: derivative in sums (:meth:`_march_by_parts`): for a kernel that
+        #: differentiates inside a symbolic loop, where Dr.Jit 1.5 cannot
+        #: differentiate a product through the march's own loop.
+        self.by_parts = by_parts
         self.needs = needs
         self.tinted = shadows == "tinted"
         self.blocking = shadows == "blocking"
@@ -114,19 +120,64 @@ class ShadowTester(ReadsScene):
     def _march(self, ray: mi.Ray3f, target: mi.Point3f, active: mi.Bool, slot):
         """Follow the shadow ray through pass-through surfaces to the light:
         what arrives, and how many closest-hit queries that took."""
+        if dr.hint(self.by_parts, mode="scalar"):
+            return self._march_by_parts(ray, target, active, slot)
         weight = dr.select(active, mi.Color3f(1), mi.Color3f(0))
         crossings = mi.UInt32(0)
         while active:
-            self._log_query(slot, crossings, ray, active)
-            si = self.intersect(ray, active)
-            hit = active & si.is_valid()
-            passed = self._pass_weight(si, ray, hit)
+            passed, hit, going_on, ray = self._crossing(ray, target, active, slot, crossings)
             weight[hit] = weight * passed
+            weight[hit & ~going_on] = mi.Color3f(0)
             crossings += 1
-            active = hit & dr.any(passed > 0) & (crossings < MAX_SHADOW_CROSSINGS)
-            weight[hit & ~active] = mi.Color3f(0)
-            ray[active] = spawn_ray_to(si, target, self.needs.scale)
+            active = going_on
         return weight, crossings
+
+    @dr.syntax
+    def _march_by_parts(self, ray: mi.Ray3f, target: mi.Point3f, active: mi.Bool, slot):
+        """``_march`` whose loop carries no derivative, so that it can stay
+        symbolic where a derivative is taken inside the kernel (see
+        ``by_parts``): the product of what each crossing passes is held
+        without derivative, beside the sums that give the derivative of
+        that product, a loop of sums (``max_iterations=-1``) for Dr.Jit.
+
+        Per channel, with ``p_i`` what crossing ``i`` passes, ``Q`` the
+        product of the non-zero ones and ``z`` the count of zeros:
+        ``d(prod p_i) = Q sum_i dp_i / p_i`` if ``z`` is 0, ``Q dp_k`` for
+        the zero ``k`` if ``z`` is 1, else 0. A blocked ray's weight is a
+        constant 0, without derivative."""
+        weight = dr.select(active, mi.Color3f(1), mi.Color3f(0))
+        nonzero = mi.Color3f(1)
+        zeros = mi.Color3f(0)
+        relative = mi.Color3f(0)
+        at_zeros = mi.Color3f(0)
+        blocked = mi.Bool(False)
+        crossings = mi.UInt32(0)
+        while dr.hint(active, max_iterations=-1):
+            passed, hit, going_on, ray = self._crossing(ray, target, active, slot, crossings)
+            value = dr.detach(passed)
+            zero = value == 0
+            weight[hit] = weight * value
+            nonzero[hit] = nonzero * dr.select(zero, 1, value)
+            zeros[hit] = zeros + dr.select(zero, 1, 0)
+            relative += dr.select(hit & ~zero, passed / dr.select(zero, 1, value), 0)
+            at_zeros += dr.select(hit & zero, passed, 0)
+            blocked |= hit & ~going_on
+            weight[blocked] = mi.Color3f(0)
+            crossings += 1
+            active = going_on
+        parts = dr.select(zeros == 0, relative, dr.select(zeros == 1, at_zeros, 0))
+        return dr.replace_grad(weight, dr.select(blocked, 0, nonzero * parts)), crossings
+
+    def _crossing(self, ray: mi.Ray3f, target: mi.Point3f, active: mi.Bool, slot, crossings):
+        """The next surface a marching shadow ray meets: what it passes,
+        where it was met, where the ray goes on, and the ray from there."""
+        self._log_query(slot, crossings, ray, active)
+        si = self.intersect(ray, active)
+        hit = active & si.is_valid()
+        passed = self._pass_weight(si, ray, hit)
+        going_on = hit & dr.any(passed > 0) & (crossings + 1 < MAX_SHADOW_CROSSINGS)
+        ray = dr.select(going_on, spawn_ray_to(si, target, self.needs.scale), ray)
+        return passed, hit, going_on, ray
 
     def _log_query(self, slot, crossing, ray: mi.Ray3f, active: mi.Bool) -> None:
         if self.log is not None:
@@ -280,7 +331,7 @@ class DirectLighting:
         total = mi.Color3f(0)
         rays = ShadowRays(mi.UInt32(0), mi.UInt32(0))
         s = mi.UInt32(0)
-        while active & (s < count):
+        while dr.hint(active & (s < count), max_iterations=-1):
             radiance, cast = self._from_light(light, si, bsdf, point(s), active, first_slot + s)
             total += radiance
             rays += cast

@@ -51,11 +51,13 @@ class HitWork:
 @dataclass
 class Shaded:
     """What a hit adds, each ``None`` where its work is left out: radiance
-    (times the ray's throughput) from emission and the lights, the indirect
-    radiance gathered (:mod:`.indirect`, times the throughput too), the
-    shadow rays of each lane (``ShadowRays``), the rays of the indirect
-    paths (``IndirectRays``), and one :class:`Child` per component."""
+    (times the ray's throughput) from emission and the lights, and the same
+    before the throughput (``own``, what the hit sends back along its ray),
+    the indirect radiance gathered (:mod:`.indirect`, times the throughput
+    too), the shadow rays of each lane (``ShadowRays``), the rays of the
+    indirect paths (``IndirectRays``), and one :class:`Child` per component."""
     local: mi.Color3f = None
+    own: mi.Color3f = None
     gathered: mi.Color3f = None
     shadow: object = None
     indirect_rays: object = None
@@ -64,10 +66,13 @@ class Shaded:
 
 @dataclass
 class Child:
-    """A candidate child ray of each lane; ``code`` 0 where there is none."""
+    """A candidate child ray of each lane; ``code`` 0 where there is none.
+    ``weight``: the BSDF's weight of the child, ``throughput`` that times
+    the parent's."""
     o: mi.Point3f
     d: mi.Vector3f
     throughput: mi.Color3f
+    weight: mi.Color3f
     key: mi.UInt32
     code: mi.UInt32
 
@@ -143,6 +148,7 @@ class HitShader(ReadsScene):
                     self.settings.max_depth - generation - 1, paths)
                 shaded.gathered = gathered * throughput
         if local is not None:
+            shaded.own = local
             shaded.local = local * throughput
         return shaded
 
@@ -180,5 +186,5 @@ class HitShader(ReadsScene):
         direction = ray.d if kind == "null" else si.to_world(child.wo)
         spawned = spawn_ray(si, direction, self.needs.scale)
         child_key = mi.sample_tea_32(key, mi.UInt32(index + 1))[0]
-        return Child(spawned.o, spawned.d, child_throughput, child_key,
+        return Child(spawned.o, spawned.d, child_throughput, child.weight, child_key,
                      dr.select(ok, child.code, 0))

@@ -201,12 +201,12 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     # ------------------------------------------------------------------ setup
 
     def make_tracer(self, scene: mi.Scene, seed: int = 0, wavefront: bool = False,
-                    needs: SceneNeeds = None, differentiable: bool = False):
+                    needs: SceneNeeds = None, differentiable: str = None):
         """A tracer of ``scene`` with this integrator's settings
         (:func:`.tracers.build_tracer`; ``wavefront`` asks for the wavefront
         tracer, e.g. to capture each generation's rays, ``differentiable``
         for one whose traces Dr.Jit can differentiate, ambient term
-        included). ``needs`` replaces ``analyse(scene)``, e.g. to trace with
+        included: ``"graph"`` or ``"tree"``). ``needs`` replaces ``analyse(scene)``, e.g. to trace with
         another absolute offset length (its ``scale``)."""
         check_placements(scene)
         depth = UNBOUNDED_DEPTH if self.max_depth == -1 else self.max_depth
@@ -324,7 +324,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         sensor = sensor_of(scene, sensor)
         self._note_sample_count(spp)
         seed = gradients.primal_seed(seed_value(seed), self._state.seed)
-        replay = gradients.Replay(self.make_tracer(scene, seed, differentiable=True), sensor)
+        replay = gradients.Replay(self.make_tracer(scene, seed, differentiable="graph"), sensor)
         demand = self._demand(sensor.film(), self._tracer_for(scene, seed), 0, 0)
         plan_render(gradients.tile_demand(demand, replay.tile), self.limits)
         return sensor, seed, replay, keys

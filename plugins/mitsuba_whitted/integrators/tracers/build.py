@@ -18,27 +18,31 @@ from .wavefront import WavefrontTracer
 
 def build_tracer(scene: mi.Scene, needs: SceneNeeds, shadows: str,
                  lighting: LightingSettings, tree: TreeSettings, wavefront_size: int,
-                 wavefront: bool = False, differentiable: bool = False) -> Tracer:
+                 wavefront: bool = False, differentiable: str = None) -> Tracer:
     """A tracer of ``scene`` built from its ``needs``: the depth-first one
     where its stack is deep enough, else (or when ``wavefront`` asks, e.g.
-    to capture each generation's rays) the wavefront one; ``differentiable``
-    asks for the wavefront one unfrozen, whose traces Dr.Jit can
-    differentiate. ``shadows``: the shadow mode of :class:`ShadowTester`."""
+    to capture each generation's rays) the wavefront one. ``differentiable``
+    asks for one whose traces Dr.Jit can differentiate: ``"graph"``, the
+    wavefront one unfrozen (differentiated as a whole); ``"tree"``, one
+    whose kernels differentiate a hit at a time (:mod:`.tree_replay`), the
+    depth-first one where it serves. ``shadows``: the shadow mode of
+    :class:`ShadowTester`."""
     scene_ref = SceneRef(scene)
     refiner = (AnalyticRefiner(scene_ref, needs.analytic_shapes, needs.scale)
                if needs.analytic_shapes else None)
     intersect = refiner.intersect if refiner else plain_intersect(scene_ref)
-    shadow_test = ShadowTester(scene_ref, needs, shadows, intersect)
+    shadow_test = ShadowTester(scene_ref, needs, shadows, intersect,
+                               by_parts=differentiable == "tree")
     indirect = None
     if lighting.indirect_samples:
         indirect = IndirectLight(scene_ref, needs, lighting.indirect_samples, lighting.seed,
                                  intersect, ShadowTester(scene_ref, needs, "blocking", intersect))
     shader = HitShader(scene_ref, needs, tree, DirectLighting(needs, lighting, shadow_test),
                        indirect)
-    if not (wavefront or differentiable) and DepthFirstTracer.supports(shader):
+    if not wavefront and differentiable != "graph" and DepthFirstTracer.supports(shader):
         return DepthFirstTracer(shader, intersect, refiner, wavefront_size)
     return WavefrontTracer(shader, intersect, refiner, wavefront_size,
-                           frozen=not differentiable)
+                           frozen=differentiable is None)
 
 
 def plain_intersect(scene_ref: SceneRef):

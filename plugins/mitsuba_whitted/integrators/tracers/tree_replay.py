@@ -1,0 +1,220 @@
+"""Derivatives of camera samples' radiance, each ray tree replayed depth
+first in one frozen kernel that differentiates it node by node.
+
+The radiance of a camera sample is a sum over the nodes of its ray tree,
+each node's own radiance (emission, the lights, the ambient term) times
+its throughput, the product of the BSDF weights on the way to it. Written
+from the root, ``R(n) = own(n) + sum_k w_k(n) R(c_k)`` over the node's
+children ``c_k``. A parameter changes ``own`` and the weights ``w``, and
+nothing else: the parameters that move rays (geometry, the sensor) are
+refused, and so a node's derivative is local,
+
+    dL = sum_n T(n) [d own(n) + sum_k d w_k(n) R(c_k)],
+
+with the throughputs ``T`` and the children's radiances ``R`` held fixed.
+This is the replay of Mitsuba's ``prb`` with a tree for a path: the kernel
+walks each tree as :mod:`.depth_first` does and, at each node, takes the
+derivative of that node's term alone, ``dr.backward_from`` (reverse mode)
+or ``dr.forward_to`` (forward mode) inside the loop. No derivative crosses
+an iteration, so the loop stays symbolic and the whole replay is one frozen
+kernel per tile.
+
+A node's term needs its children's radiances, known only once their
+subtrees are walked: a node with children opens a *frame* (its ray,
+throughput and the radiance each child sends back), and when its last
+child is done the loop traces that node's ray again, shades it with the
+derivative and sends its own radiance up to its parent's frame. A node
+without children is done as soon as it is shaded. The rays a tree visits
+and their order are the depth-first tracer's, its cut at ``MAX_TREE_RAYS``
+included; inner nodes are traced twice.
+
+The open frames wait on a second :class:`LaneStack`, the innermost in
+registers. A frame is opened by a node that spawns children, so at most
+``spawning_generations`` are open at once.
+
+Determinism: the backward kernel's scatter-adds into the parameters'
+gradients land in lane order only on one thread, where it runs (as in
+:mod:`..gradients`); the forward kernel adds nothing outside its lanes and
+runs on every thread.
+"""
+
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+
+from ..shading import MAX_TREE_RAYS
+from .depth_first import DepthFirstTracer, LaneStack, _select_all
+from .frozen import FrozenKernel
+
+#: A ray waiting on the stack: origin, direction, throughput, key,
+#: generation, and which of its parent's children it is (its slot).
+RAY_TYPES = (mi.Point3f, mi.Vector3f, mi.Color3f, mi.UInt32, mi.UInt32, mi.UInt32)
+#: A frame holds its node's ray, the count of children still to finish,
+#: then the radiance each child sent back.
+PENDING = len(RAY_TYPES)
+
+
+class TreeReplay:
+    """``backward`` and ``forward`` of the radiance of camera rays, traced
+    by ``tracer``'s shader and intersection (a :class:`DepthFirstTracer`
+    built differentiable). ``sources`` (arguments of the kernels) are the
+    arrays the derivative is taken with respect to, besides the scene's."""
+
+    def __init__(self, tracer: DepthFirstTracer):
+        self.tracer = tracer
+        self.shader = tracer.shader
+        self.intersect = tracer.intersect
+        self.ray_capacity = tracer.capacity
+        self.frame_types = RAY_TYPES + (mi.UInt32,) + (mi.Color3f,) * self.shader.fan_out
+        # Open frames besides the one in registers.
+        self.frame_capacity = max(self.shader.spawning_generations() - 1, 1)
+        self._backward = FrozenKernel(self._backward_kernel, "gradient replay")
+        self._forward = FrozenKernel(self._forward_kernel, "gradient replay")
+
+    def backward(self, rays, adjoint: mi.Color3f, sources: list) -> mi.Color3f:
+        """Add to the gradients of the scene's parameters (and of
+        ``sources``) that of the rays' radiance weighed by ``adjoint``; the
+        radiance, summed as the replay does."""
+        return self._backward(len(rays), self.shader.scene, self.tracer._kernel_inputs,
+                              sources, *rays.fields(), adjoint)
+
+    def forward(self, rays, sources: list) -> mi.Color3f:
+        """The tangent of the rays' radiance along the gradients the
+        parameters (and ``sources``) hold."""
+        return self._forward(len(rays), self.shader.scene, self.tracer._kernel_inputs,
+                             sources, *rays.fields())
+
+    def _backward_kernel(self, scene, inputs, sources, o, d, throughput, key, adjoint):
+        # The loop itself is not differentiated: its body takes each node's
+        # derivative in a scope of its own (``_node_term``).
+        with dr.suspend_grad():
+            radiance, _ = self._walk(o, d, throughput, key, adjoint)
+        return radiance
+
+    def _forward_kernel(self, scene, inputs, sources, o, d, throughput, key):
+        with dr.suspend_grad():
+            _, tangent = self._walk(o, d, throughput, key, None)
+        return tangent
+
+    @dr.syntax
+    def _walk(self, o, d, throughput, key, adjoint):
+        """Walk each ray's tree; the radiance, and the tangent where
+        ``adjoint`` is ``None`` (forward mode; else each node's derivative
+        is sent back weighed by ``adjoint``)."""
+        rays = LaneStack.allocate(RAY_TYPES, self.ray_capacity)
+        frames = LaneStack.allocate(self.frame_types, self.frame_capacity)
+        zero = mi.UInt32(0)
+        ray = (o, d, throughput, key, zero, zero)
+        frame = ray + (zero,) + (mi.Color3f(0),) * self.shader.fan_out
+        walk = (mi.UInt32(0), mi.UInt32(0), mi.UInt32(0), mi.UInt32(0))
+        completing = mi.Bool(False)
+        cut = mi.Bool(False)
+        live = mi.Bool(True)
+        radiance = mi.Color3f(0)
+        tangent = mi.Color3f(0)
+        while live:
+            ray, frame, walk, completing, cut, live, radiance, tangent = self._step(
+                rays, frames, ray, frame, walk, completing, cut, live, radiance, tangent,
+                adjoint)
+        return radiance, tangent
+
+    def _step(self, rays, frames, ray, frame, walk, completing, cut, live, radiance,
+              tangent, adjoint):
+        """One node: the next ray of the walk, or (``completing``) the node
+        of the frame in registers, whose children are all done. ``walk``:
+        sizes of the two stacks, open frames, rays visited."""
+        size, frames_size, depth, visited = walk
+        node = _select_all(completing, frame[:PENDING], ray)
+        sent, children, tangent = self._node_term(node, frame, completing, tangent, adjoint)
+        has_children = mi.Bool(False)
+        for child in children:
+            has_children |= child.code != 0
+        opens = ~completing & has_children
+        done = ~opens
+        visited = dr.select(completing, visited, visited + 1)
+        cut |= visited >= MAX_TREE_RAYS
+
+        # A node with children opens a frame; its last child goes next, the
+        # others wait on the stack.
+        frames_size = frames.push(frames_size, frame, opens & (depth > 0))
+        pending = mi.UInt32(0)
+        for child in children:
+            pending += mi.UInt32(opens & (child.code != 0))
+        opened = node + (pending,) + (mi.Color3f(0),) * len(children)
+        frame = _select_all(opens, opened, frame)
+        depth = dr.select(opens, depth + 1, depth)
+        size, ray = self._queue_children(rays, size, ray, node, children, opens)
+
+        # A node done sends its radiance to its parent's frame: the one in
+        # registers, or for a completed frame the one under it.
+        frame, frames_size, _ = frames.pop(frames_size, frame, completing & (depth > 1))
+        depth = dr.select(completing, depth - 1, depth)
+        root = done & (depth == 0)
+        radiance = dr.select(root, sent, radiance)
+        live &= ~root
+        delivers = done & (depth > 0)
+        frame = _delivered(frame, node[PENDING - 1], sent, delivers)
+
+        # Next: the parent's node once its children are done (or the tree
+        # is cut), else the next waiting ray.
+        finished = delivers & ((frame[PENDING] == 0) | cut)
+        ray, size, _ = rays.pop(size, ray, delivers & ~finished)
+        completing = finished | (opens & cut)
+        return (ray, frame, (size, frames_size, depth, visited), completing, cut, live,
+                radiance, tangent)
+
+    def _node_term(self, node, frame, completing, tangent, adjoint):
+        """Shade ``node`` and take the derivative of its term where it is
+        done: a node without children, or one ``completing`` (its children's
+        radiances in ``frame``). The radiance it sends back (detached), its
+        children, and the tangent with its term's added (forward mode)."""
+        o, d, throughput, key, generation, _ = node
+        traced = mi.Ray3f(o, d)
+        si = self.intersect(traced, mi.Bool(True), coherent=True)
+        with dr.resume_grad():
+            shaded = self.shader.shade(si, traced, throughput, key,
+                                       self.shader.work(generation), generation)
+            sent = shaded.own if shaded.own is not None else mi.Color3f(0)
+            has_children = mi.Bool(False)
+            for child, returned in zip(shaded.children, frame[PENDING + 1:]):
+                spawned = child.code != 0
+                has_children |= spawned
+                sent = sent + dr.select(spawned, child.weight * returned, 0)
+            term = dr.select(completing | ~has_children, throughput * sent, 0)
+            if adjoint is None:
+                tangent = tangent + dr.forward_to(term)
+            else:
+                dr.backward_from(adjoint * term)
+        children = [_detached(child) for child in shaded.children]
+        return dr.detach(sent), children, tangent
+
+    def _queue_children(self, rays, size, ray, node, children, opens):
+        """Where ``opens``: the last spawned child in registers, the earlier
+        ones pushed (the order of :mod:`.depth_first`)."""
+        generation = node[4] + 1
+        waiting = mi.Bool(False)
+        following = ray
+        for slot, child in enumerate(children):
+            spawned = opens & (child.code != 0)
+            size = rays.push(size, following, waiting & spawned)
+            following = _select_all(spawned, (child.o, child.d, child.throughput, child.key,
+                                              generation, mi.UInt32(slot)), following)
+            waiting |= spawned
+        return size, following
+
+
+def _detached(child):
+    """A child with no derivative: rays and throughputs the walk holds."""
+    child.o, child.d = dr.detach(child.o), dr.detach(child.d)
+    child.throughput = dr.detach(child.throughput)
+    return child
+
+
+def _delivered(frame: tuple, slot: mi.UInt32, sent: mi.Color3f, active: mi.Bool) -> tuple:
+    """``frame`` with ``sent`` as the radiance of child ``slot`` and one
+    child fewer pending, where ``active``."""
+    returned = tuple(dr.select(active & (slot == k), sent, value)
+                     for k, value in enumerate(frame[PENDING + 1:]))
+    pending = dr.select(active, frame[PENDING] - 1, frame[PENDING])
+    return frame[:PENDING] + (pending,) + returned
