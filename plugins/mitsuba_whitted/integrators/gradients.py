@@ -69,7 +69,8 @@ from ..jit import concat, index_range
 from .camera_shader import CameraShader
 from .render_plan import Demand
 from .settings import PLUGIN_NAME
-from .tracers import RayBatch
+from .tracers import DepthFirstTracer, RayBatch
+from .tracers.tree_replay import TreeWalk
 
 #: A shape's parameters whose change moves its surface.
 GEOMETRY = ("vertex_positions", "to_world", "center", "radius", "height")
@@ -80,6 +81,9 @@ TILE_FACTOR = 4
 #: Bytes of a tile's AD graph per camera sample, with some margin (about
 #: 900 on the report's scene).
 TILE_SAMPLE_BYTES = 1280
+#: Bytes per camera sample of a tile of the tree replay: its ray, adjoint
+#: and radiance.
+TREE_SAMPLE_BYTES = 96
 _NOT_GEOMETRY = ("which whitted does not differentiate (silhouettes would move); "
                  "differentiate materials, textures, lights or the ambient term")
 
@@ -96,11 +100,19 @@ def require_differentiable(indirect_samples: int) -> None:
           "set it to 0 for gradients")
 
 
-def tile_demand(demand: Demand, tile: int) -> Demand:
-    """What a render's ``demand`` becomes where a tile of ``tile`` camera
-    samples is traced again with AD beside it."""
-    return dataclasses.replace(demand, launch_samples=tile,
-                               launch_sample_bytes=TILE_SAMPLE_BYTES)
+def tile_demand(demand: Demand, replay: "Replay") -> Demand:
+    """What a render's ``demand`` becomes where ``replay`` traces a tile
+    of camera samples again beside it."""
+    return dataclasses.replace(demand, launch_samples=replay.tile,
+                               launch_sample_bytes=replay.sample_bytes)
+
+
+def replay_of(tracer, sensor: mi.Sensor) -> "Replay":
+    """The replay of camera samples that differentiates ``tracer``'s
+    traces (built ``differentiable``)."""
+    if isinstance(tracer, DepthFirstTracer):
+        return TreeReplay(tracer, sensor)
+    return GraphReplay(tracer, sensor)
 
 
 def primal_seed(seed: int, last_seed: int) -> int:
@@ -258,28 +270,97 @@ class _Launch:
 
 
 class Replay:
-    """The radiance of camera samples traced again with AD enabled, tile by
-    tile (see the module's docstring)."""
+    """The camera samples of a render traced again for their derivative,
+    tile by tile: ``tile`` samples at a time, each holding
+    ``sample_bytes`` while it is traced."""
+
+    tile: int
+    sample_bytes: int
 
     def __init__(self, tracer, sensor: mi.Sensor):
         self.tracer = tracer
         self.sensor = sensor
+
+    def _rays(self, positions, keys, lens, part) -> RayBatch:
+        """The camera rays of the samples ``part``, without derivative."""
+        with dr.suspend_grad():
+            ray, weight = camera_rays(self.sensor, dr.gather(mi.Point2f, positions, part),
+                                      None if lens is None else dr.gather(mi.Point2f, lens, part))
+            return RayBatch(ray.o, ray.d, mi.Color3f(weight), dr.gather(mi.UInt32, keys, part))
+
+    def _parts(self, count: int):
+        for start in range(0, count, self.tile):
+            yield index_range(start, min(start + self.tile, count))
+
+
+class TreeReplay(Replay):
+    """Each sample's ray tree replayed in frozen kernels that differentiate
+    it a hit at a time (:mod:`.tracers.tree_replay`): no derivative graph
+    outlives a hit, so a tile is as wide as a render's launch."""
+
+    sample_bytes = TREE_SAMPLE_BYTES
+
+    def __init__(self, tracer, sensor: mi.Sensor):
+        super().__init__(tracer, sensor)
+        self.tile = tracer.camera_batch
+        self.walk = TreeWalk(tracer)
+
+    def tangent(self, positions, keys, lens, sources: list) -> mi.Color3f:
+        """The samples' radiance tangent, from ``sources``: pairs of a
+        stand-in of a parameter and its tangent.
+
+        The tangents are first carried to the values the plugins derived
+        from the stand-ins (a bitmap's texels), and the edges between them
+        dropped: the kernel's derivatives start from the arrays it reads,
+        since a frozen function's may not leave it. The kernel adds nothing
+        outside its own lanes, so it runs on every thread."""
+        count = dr.width(keys)
+        tangent = dr.empty(mi.Color3f, count)
+        leaves = [leaf for leaf, _ in sources]
+        with dr.resume_grad():
+            for leaf, value in sources:
+                dr.set_grad(leaf, value)
+            dr.enqueue(dr.ADMode.Forward, leaves)
+            dr.traverse(dr.ADMode.Forward, flags=dr.ADFlag.ClearEdges)
+            for part in self._parts(count):
+                rays = self._rays(positions, keys, lens, part)
+                dr.scatter(tangent, self.walk.forward(rays, leaves), part)
+                dr.eval(tangent)
+            for leaf in leaves:
+                dr.clear_grad(leaf)
+        return tangent
+
+    def backward(self, positions, keys, lens, adjoint: mi.Color3f, parameters: list) -> None:
+        """Add to the gradients of ``parameters`` that of the samples'
+        radiance weighed by ``adjoint``."""
+        for part in self._parts(dr.width(keys)):
+            rays = self._rays(positions, keys, lens, part)
+            part_adjoint = dr.gather(mi.Color3f, adjoint, part)
+            dr.eval(rays.fields(), part_adjoint)
+            with dr.resume_grad(), _one_thread():
+                self.walk.backward(rays, part_adjoint, parameters)
+                dr.eval([dr.grad(parameter) for parameter in parameters])
+
+
+class GraphReplay(Replay):
+    """The samples' radiance traced again with AD enabled by the wavefront
+    tracer unfrozen, for the trees too deep for :class:`TreeReplay`'s
+    stacks; only one tile's AD graph is kept (see the module's
+    docstring)."""
+
+    sample_bytes = TILE_SAMPLE_BYTES
+
+    def __init__(self, tracer, sensor: mi.Sensor):
+        super().__init__(tracer, sensor)
         self.tile = tracer.camera_batch * TILE_FACTOR
 
     def _radiance(self, positions, keys, lens, part, reverse: bool) -> mi.Color3f:
         """Radiance of the samples ``part`` of ``positions``, to be
         differentiated in reverse mode or (``reverse`` false) forward."""
-        with dr.suspend_grad():
-            ray, weight = camera_rays(self.sensor, dr.gather(mi.Point2f, positions, part),
-                                      None if lens is None else dr.gather(mi.Point2f, lens, part))
-            rays = RayBatch(ray.o, ray.d, mi.Color3f(weight), dr.gather(mi.UInt32, keys, part))
+        rays = self._rays(positions, keys, lens, part)
         with dr.resume_grad(), _evaluated(reverse):
             radiance, _ = self.tracer.trace(rays)
         return radiance
-
-    def _parts(self, count: int):
-        for start in range(0, count, self.tile):
-            yield index_range(start, min(start + self.tile, count))
 
     def tangent(self, positions, keys, lens, sources: list) -> mi.Color3f:
         """The samples' radiance tangent, from ``sources``: pairs of a

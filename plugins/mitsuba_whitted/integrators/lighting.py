@@ -94,6 +94,10 @@ class ShadowTester(ReadsScene):
         about as much as a full one's setup, and many packets have no
         shadow ray at all (packets of sky, of glass, of finished ray
         trees)."""
+        if dr.hint(self.by_parts and dr.grad_enabled(target), mode="scalar"):
+            # Dr.Jit 1.5 aborts on a symbolic branch whose input carries a
+            # derivative inside such a kernel (a light that moves).
+            return self._cast(si, target, active, slot)
         passed = mi.Color3f(0)
         marched = mi.UInt32(0)
         if active:
@@ -144,7 +148,14 @@ class ShadowTester(ReadsScene):
         product of the non-zero ones and ``z`` the count of zeros:
         ``d(prod p_i) = Q sum_i dp_i / p_i`` if ``z`` is 0, ``Q dp_k`` for
         the zero ``k`` if ``z`` is 1, else 0. A blocked ray's weight is a
-        constant 0, without derivative."""
+        constant 0, without derivative.
+
+        The ray too is held without derivative. A light that moves turns
+        it: every crossing lies on the one segment from the hit, so each
+        segment's direction takes the derivative of the first one's, which
+        depends on the target alone (a constant of the loop)."""
+        start = dr.detach(ray.o)
+        ray = dr.detach(ray)
         weight = dr.select(active, mi.Color3f(1), mi.Color3f(0))
         nonzero = mi.Color3f(1)
         zeros = mi.Color3f(0)
@@ -153,7 +164,11 @@ class ShadowTester(ReadsScene):
         blocked = mi.Bool(False)
         crossings = mi.UInt32(0)
         while dr.hint(active, max_iterations=-1):
-            passed, hit, going_on, ray = self._crossing(ray, target, active, slot, crossings)
+            turning = mi.Ray3f(ray)
+            turning.d = dr.replace_grad(ray.d, dr.normalize(target - start))
+            passed, hit, going_on, ray = self._crossing(turning, target, active, slot,
+                                                        crossings)
+            ray = dr.detach(ray)
             value = dr.detach(passed)
             zero = value == 0
             weight[hit] = weight * value
@@ -323,19 +338,30 @@ class DirectLighting:
 
     @dr.syntax
     def _sampled(self, light, index, si, bsdf, key, active):
-        """Mean of ``emitter_samples`` shadow rays, spread by the R2 sequence."""
+        """Mean of ``emitter_samples`` shadow rays, spread by the R2 sequence.
+        Where the march carries its derivative by parts, the samples are
+        unrolled: Dr.Jit 1.5 cannot differentiate this loop around that
+        march inside a kernel that differentiates in its own loop."""
         count = self.settings.emitter_samples
         first_slot = len(self.needs.delta_lights) + index * count
         active = self._lights_reach(light, si, active)
         point = self._sample_points(key, index)
         total = mi.Color3f(0)
         rays = ShadowRays(mi.UInt32(0), mi.UInt32(0))
-        s = mi.UInt32(0)
-        while dr.hint(active & (s < count), max_iterations=-1):
-            radiance, cast = self._from_light(light, si, bsdf, point(s), active, first_slot + s)
-            total += radiance
-            rays += cast
-            s += 1
+        if dr.hint(self.shadows.by_parts, mode="scalar"):
+            for sample in range(count):
+                radiance, cast = self._from_light(light, si, bsdf, point(sample), active,
+                                                  first_slot + sample)
+                total += radiance
+                rays += cast
+        else:
+            s = mi.UInt32(0)
+            while active & (s < count):
+                radiance, cast = self._from_light(light, si, bsdf, point(s), active,
+                                                  first_slot + s)
+                total += radiance
+                rays += cast
+                s += 1
         return total / count, rays
 
 

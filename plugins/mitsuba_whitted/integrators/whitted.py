@@ -33,6 +33,7 @@ from .settings import (AA_MODES, PLUGIN_NAME, SETTINGS, SHADOW_MODES, UNBOUNDED_
                        read_settings, require_supported_variant, seed_value, validate)
 from .shading import MAX_TREE_RAYS, TreeSettings
 from .tracers import RayBatch, build_tracer
+from .tracers.tree_replay import ReplayRefused
 
 
 class WhittedIntegrator(mi.SamplingIntegrator):
@@ -150,6 +151,11 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     plugin_name = PLUGIN_NAME
     #: What bounds a render's memory (:class:`.render_plan.Limits`).
     limits = render_plan.Limits()
+    #: How a derivative traces the samples again (:mod:`.gradients`):
+    #: ``"tree"``, frozen kernels that differentiate a hit at a time where the
+    #: depth-first tracer serves; ``"graph"``, the whole trace differentiated
+    #: unfrozen, which the tests keep as the oracle of the first.
+    gradient_replay = "tree"
 
     def __init__(self, props: mi.Properties):
         # Refused before Mitsuba's base class warns about scalar variants.
@@ -228,14 +234,40 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         (:func:`.scene_ref.plain_values`). The tracer reads ``scene`` only while
         ``render`` holds it in the tracer's ``scene_ref``."""
         needs = analyse(scene)
-        built_from = (identity(scene), needs, seed, self.capture_rays,
-                      self._parameter_values(), plain_values(scene))
+        built_from = self._built_from(scene, needs, seed, self.capture_rays)
         if self._state.built_from == built_from:
             self._state.tracer.reload()
             return self._state.tracer
         tracer = self.make_tracer(scene, seed, wavefront=self.capture_rays, needs=needs)
         self._state.built_from, self._state.tracer = built_from, tracer
         return tracer
+
+    def _replay_for(self, scene: mi.Scene, seed: int, sensor: mi.Sensor):
+        """The :class:`.gradients.Replay` of the last derivative, of
+        ``sensor``'s samples, if nothing its tracer was built from changed
+        (as ``_tracer_for``; also whether the ambient term is
+        differentiated, which a tracer leaves out where it is 0), else a
+        new one, of the ``gradient_replay`` kind."""
+        needs = analyse(scene)
+        state = self._state
+        kind = self.gradient_replay
+        built_from = self._built_from(scene, needs, seed, kind,
+                                      dr.grad_enabled(self._exposed.arrays["ambient"]))
+        if built_from == state.replay_refused:
+            kind = "graph"
+            built_from = built_from + (kind,)
+        if state.replay_built_from == built_from:
+            state.replay.tracer.reload()
+            state.replay.sensor = sensor
+            return state.replay
+        tracer = self.make_tracer(scene, seed, needs=needs, differentiable=kind)
+        state.replay_built_from, state.replay = built_from, gradients.replay_of(tracer, sensor)
+        return state.replay
+
+    def _built_from(self, scene: mi.Scene, needs: SceneNeeds, seed: int, *kind) -> tuple:
+        """What a tracer of ``scene`` is built from, ``kind`` included."""
+        return (identity(scene), needs, seed, *kind, self._parameter_values(),
+                plain_values(scene))
 
     def _parameter_values(self) -> tuple:
         return (self.max_depth, self.shadows, self.emitter_samples, self.min_throughput,
@@ -267,6 +299,10 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     def render_forward(self, scene: mi.Scene, params, sensor=0, seed=0, spp=0):
         """The derivative of ``render``'s image along the tangents of the
         parameters of ``params`` (:mod:`.gradients`), as a film's image."""
+        return self._refused_trees_retried(self._render_forward, scene, params, sensor, seed,
+                                           spp)
+
+    def _render_forward(self, scene: mi.Scene, params, sensor, seed, spp):
         sensor, seed, replay, keys = self._gradient_setup(scene, params, sensor, seed, spp)
         film = sensor.film()
         channels = film_channels(film)
@@ -294,6 +330,10 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         """Add to the gradients of the parameters of ``params`` the
         derivative of ``render``'s image weighed by ``grad_in``, an image
         of adjoints (:mod:`.gradients`)."""
+        self._refused_trees_retried(self._render_backward, scene, params, grad_in, sensor, seed,
+                                    spp)
+
+    def _render_backward(self, scene: mi.Scene, params, grad_in, sensor, seed, spp) -> None:
         sensor, seed, replay, keys = self._gradient_setup(scene, params, sensor, seed, spp)
         adjoint = adjoint_pixels(grad_in, sensor.film())
         shaders = []
@@ -313,6 +353,17 @@ class WhittedIntegrator(mi.SamplingIntegrator):
 
             self.render_bands(scene, sensor, seed, take, film_entries=0, shader=shader)
 
+    def _refused_trees_retried(self, derivative, *args):
+        """``derivative(*args)``, taken again by the graph replay if Dr.Jit
+        refused to record the tree replay's kernels (which happens before
+        any of them ran, and leaves the parameters' gradients as they
+        were: the stand-ins' are dropped)."""
+        try:
+            return derivative(*args)
+        except ReplayRefused:
+            self._state.replay_refused = self._state.replay_built_from
+            return derivative(*args)
+
     def _gradient_setup(self, scene: mi.Scene, params, sensor, seed, spp):
         """The sensor, the seed of the image to differentiate, a
         :class:`.gradients.Replay` of its samples and the keys of the
@@ -324,9 +375,9 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         sensor = sensor_of(scene, sensor)
         self._note_sample_count(spp)
         seed = gradients.primal_seed(seed_value(seed), self._state.seed)
-        replay = gradients.Replay(self.make_tracer(scene, seed, differentiable="graph"), sensor)
+        replay = self._replay_for(scene, seed, sensor)
         demand = self._demand(sensor.film(), self._tracer_for(scene, seed), 0, 0)
-        plan_render(gradients.tile_demand(demand, replay.tile), self.limits)
+        plan_render(gradients.tile_demand(demand, replay), self.limits)
         return sensor, seed, replay, keys
 
     @one_at_a_time
@@ -535,10 +586,14 @@ class _RenderState:
     last render left (see the integrator's ``last_*``), and the warnings
     already given."""
 
-    __slots__ = ("built_from", "tracer", "stats", "sample_map", "rays", "noted", "seed")
+    __slots__ = ("built_from", "tracer", "replay_built_from", "replay", "replay_refused", "stats",
+                 "sample_map", "rays", "noted", "seed")
 
     def __init__(self):
         self.built_from = self.tracer = self.sample_map = self.rays = None
+        #: The last derivative's replay (``_replay_for``), and what the
+        #: tree replay Dr.Jit refused was built from.
+        self.replay_built_from = self.replay = self.replay_refused = None
         #: The seed of the last ``render`` (``gradients`` differentiate its image).
         self.seed = 0
         self.stats = {}

@@ -31,8 +31,7 @@ def build_tracer(scene: mi.Scene, needs: SceneNeeds, shadows: str,
     refiner = (AnalyticRefiner(scene_ref, needs.analytic_shapes, needs.scale)
                if needs.analytic_shapes else None)
     intersect = refiner.intersect if refiner else plain_intersect(scene_ref)
-    shadow_test = ShadowTester(scene_ref, needs, shadows, intersect,
-                               by_parts=differentiable == "tree")
+    shadow_test = ShadowTester(scene_ref, needs, shadows, intersect)
     indirect = None
     if lighting.indirect_samples:
         indirect = IndirectLight(scene_ref, needs, lighting.indirect_samples, lighting.seed,
@@ -40,6 +39,7 @@ def build_tracer(scene: mi.Scene, needs: SceneNeeds, shadows: str,
     shader = HitShader(scene_ref, needs, tree, DirectLighting(needs, lighting, shadow_test),
                        indirect)
     if not wavefront and differentiable != "graph" and DepthFirstTracer.supports(shader):
+        shadow_test.by_parts = differentiable == "tree"
         return DepthFirstTracer(shader, intersect, refiner, wavefront_size)
     return WavefrontTracer(shader, intersect, refiner, wavefront_size,
                            frozen=differentiable is None)

@@ -55,7 +55,12 @@ RAY_TYPES = (mi.Point3f, mi.Vector3f, mi.Color3f, mi.UInt32, mi.UInt32, mi.UInt3
 PENDING = len(RAY_TYPES)
 
 
-class TreeReplay:
+class ReplayRefused(Exception):
+    """Dr.Jit could not record a kernel of the tree replay: the caller
+    takes the derivative another way. Raised before any kernel ran."""
+
+
+class TreeWalk:
     """``backward`` and ``forward`` of the radiance of camera rays, traced
     by ``tracer``'s shader and intersection (a :class:`DepthFirstTracer`
     built differentiable). ``sources`` (arguments of the kernels) are the
@@ -69,8 +74,10 @@ class TreeReplay:
         self.frame_types = RAY_TYPES + (mi.UInt32,) + (mi.Color3f,) * self.shader.fan_out
         # Open frames besides the one in registers.
         self.frame_capacity = max(self.shader.spawning_generations() - 1, 1)
-        self._backward = FrozenKernel(self._backward_kernel, "gradient replay")
-        self._forward = FrozenKernel(self._forward_kernel, "gradient replay")
+        refusal = (self._refuse, "the gradient is taken by the slower unfrozen replay, as "
+                                 "Dr.Jit cannot replay this scene's trees a hit at a time")
+        self._backward = FrozenKernel(self._backward_kernel, "gradient replay", fallback=refusal)
+        self._forward = FrozenKernel(self._forward_kernel, "gradient replay", fallback=refusal)
 
     def backward(self, rays, adjoint: mi.Color3f, sources: list) -> mi.Color3f:
         """Add to the gradients of the scene's parameters (and of
@@ -84,6 +91,9 @@ class TreeReplay:
         parameters (and ``sources``) hold."""
         return self._forward(len(rays), self.shader.scene, self.tracer._kernel_inputs,
                              sources, *rays.fields())
+
+    def _refuse(self, *args):
+        raise ReplayRefused()
 
     def _backward_kernel(self, scene, inputs, sources, o, d, throughput, key, adjoint):
         # The loop itself is not differentiated: its body takes each node's
