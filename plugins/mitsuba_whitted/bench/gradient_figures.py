@@ -4,9 +4,13 @@ the peak memory of one, and Mitsuba's ``prb`` at equal gradient error.
 A gradient here is what one step of an optimisation runs:
 ``mi.render(scene, params)`` and ``dr.backward`` of the image, with every
 differentiable parameter of the scene enabled (materials, textures, lights,
-the ambient term). It is timed in alternating rounds with a plain render,
-and the ratio is the median of the rounds' ratios; the first gradient
-(tracing and compiling its kernels) is reported apart.
+the ambient term). It is timed in alternating rounds with a plain render:
+each time is a median with its 95% interval over the rounds, and the
+ratio spans what the two intervals allow together
+(:func:`~mitsuba_whitted.compare.intervals.quotient`); the first gradient
+(tracing and compiling its kernels) is reported apart, and so is the way
+the integrator replayed the samples (``tree`` or ``graph``, see
+:mod:`mitsuba_whitted.integrators.gradients`).
 
 Equal error: on a scene where Whitted and path tracing agree in expectation
 (a Phong ball before a gold mirror, two point lights), the derivative of the
@@ -28,6 +32,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ..compare.intervals import Estimate, estimate_text, median_estimate, quotient
 from ..jit import timed
 from ..overrides import load_with
 from .processes import child_peak_memory
@@ -80,14 +85,15 @@ class GradientStep:
 
 @dataclass
 class GradientTiming:
-    """A gradient of the scene beside its render (medians of alternating
-    rounds; ``ratio`` is the median of the rounds' ratios)."""
+    """A gradient of the scene beside its render, in alternating rounds;
+    ``replay``: how the integrator traced the samples again."""
     parameters: int
     entries: int
+    replay: str
     first_gradient_s: float
-    render_s: float
-    gradient_s: float
-    ratio: float
+    render_s: Estimate
+    gradient_s: Estimate
+    ratio: Estimate
 
 
 def gradient_timing(scene_path: Path, defines: dict, settings: dict,
@@ -100,9 +106,10 @@ def gradient_timing(scene_path: Path, defines: dict, settings: dict,
     for _ in range(repeats):
         renders += timed(lambda: mi.render(scene), 1)[1]
         steps += timed(step, 1)[1]
+    render, gradient = median_estimate(renders), median_estimate(steps)
     return GradientTiming(len(step.keys), sum(_entries(step.params[key]) for key in step.keys),
-                          first, statistics.median(renders), statistics.median(steps),
-                          statistics.median([g / r for g, r in zip(steps, renders)]))
+                          scene.integrator().last_replay, first, render, gradient,
+                          quotient(gradient, render))
 
 
 def equivalence_scene(resolution: int) -> dict:
@@ -266,9 +273,10 @@ def format_lines(figures: GradientFigures) -> list:
     eq, timing = figures.equal_error, figures.timing
     lines = [f"  gradient: not measured: {figures.not_measured}"] if timing is None else [
         f"  gradient (mi.render + dr.backward, {timing.parameters} parameters, "
-        f"{timing.entries:,} entries)  {timing.gradient_s:8.3f} s = "
-        f"{timing.ratio:.1f} x the render ({timing.render_s:.3f} s in those rounds;"
-        f" target 5 x); first {timing.first_gradient_s:.3f} s",
+        f"{timing.entries:,} entries, {timing.replay} replay)  "
+        f"{estimate_text(timing.gradient_s, ' s', 3)} = {estimate_text(timing.ratio, ' x')} "
+        f"the render ({estimate_text(timing.render_s, ' s', 3)} in those rounds; target 5 x); "
+        f"first {timing.first_gradient_s:.3f} s",
         "  gradient peak RSS: " + ", ".join(f"{res} px {mib:,.0f} MiB"
                                           for res, mib in figures.peak_rss_mib.items())]
     lines += [

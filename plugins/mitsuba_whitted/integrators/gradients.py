@@ -274,6 +274,8 @@ class Replay:
     tile by tile: ``tile`` samples at a time, each holding
     ``sample_bytes`` while it is traced."""
 
+    #: ``"tree"`` or ``"graph"``, the integrator's ``gradient_replay``.
+    kind: str
     tile: int
     sample_bytes: int
 
@@ -298,6 +300,7 @@ class TreeReplay(Replay):
     it a hit at a time (:mod:`.tracers.tree_replay`): no derivative graph
     outlives a hit, so a tile is as wide as a render's launch."""
 
+    kind = "tree"
     sample_bytes = TREE_SAMPLE_BYTES
 
     def __init__(self, tracer, sensor: mi.Sensor):
@@ -348,6 +351,7 @@ class GraphReplay(Replay):
     stacks; only one tile's AD graph is kept (see the module's
     docstring)."""
 
+    kind = "graph"
     sample_bytes = TILE_SAMPLE_BYTES
 
     def __init__(self, tracer, sensor: mi.Sensor):

@@ -189,6 +189,13 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         return self._state.stats
 
     @property
+    def last_replay(self) -> str | None:
+        """How the last derivative traced the camera samples again:
+        ``"tree"`` or ``"graph"`` (:mod:`.gradients`); ``None`` before any."""
+        replay = self._state.replay
+        return None if replay is None else replay.kind
+
+    @property
     def last_sample_map(self):
         """Camera samples per pixel of the last adaptive or contrast render
         (mi.UInt32)."""

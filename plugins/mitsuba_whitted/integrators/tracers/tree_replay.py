@@ -40,9 +40,13 @@ runs on every thread.
 
 from __future__ import annotations
 
+import dataclasses
+
 import drjit as dr
 import mitsuba as mi
 
+from ...errors import Error
+from ..settings import PLUGIN_NAME
 from ..shading import MAX_TREE_RAYS
 from .depth_first import DepthFirstTracer, LaneStack, _select_all
 from .frozen import FrozenKernel
@@ -51,13 +55,18 @@ from .frozen import FrozenKernel
 #: generation, and which of its parent's children it is (its slot).
 RAY_TYPES = (mi.Point3f, mi.Vector3f, mi.Color3f, mi.UInt32, mi.UInt32, mi.UInt32)
 #: A frame holds its node's ray, the count of children still to finish,
-#: then the radiance each child sent back.
+#: the node's own radiance, then the radiance each child sent back.
 PENDING = len(RAY_TYPES)
+OWN = PENDING + 1
+RETURNED = OWN + 1
 
 
-class ReplayRefused(Exception):
+class ReplayRefused(Error):
     """Dr.Jit could not record a kernel of the tree replay: the caller
     takes the derivative another way. Raised before any kernel ran."""
+
+    def __init__(self):
+        super().__init__("Dr.Jit could not record the gradient's tree replay.", PLUGIN_NAME)
 
 
 class TreeWalk:
@@ -71,7 +80,7 @@ class TreeWalk:
         self.shader = tracer.shader
         self.intersect = tracer.intersect
         self.ray_capacity = tracer.capacity
-        self.frame_types = RAY_TYPES + (mi.UInt32,) + (mi.Color3f,) * self.shader.fan_out
+        self.frame_types = RAY_TYPES + (mi.UInt32, mi.Color3f) + (mi.Color3f,) * self.shader.fan_out
         # Open frames besides the one in registers.
         self.frame_capacity = max(self.shader.spawning_generations() - 1, 1)
         refusal = (self._refuse, "the gradient is taken by the slower unfrozen replay, as "
@@ -116,7 +125,7 @@ class TreeWalk:
         frames = LaneStack.allocate(self.frame_types, self.frame_capacity)
         zero = mi.UInt32(0)
         ray = (o, d, throughput, key, zero, zero)
-        frame = ray + (zero,) + (mi.Color3f(0),) * self.shader.fan_out
+        frame = ray + (zero,) + (mi.Color3f(0),) * (1 + self.shader.fan_out)
         walk = (mi.UInt32(0), mi.UInt32(0), mi.UInt32(0), mi.UInt32(0))
         completing = mi.Bool(False)
         cut = mi.Bool(False)
@@ -136,7 +145,8 @@ class TreeWalk:
         sizes of the two stacks, open frames, rays visited."""
         size, frames_size, depth, visited = walk
         node = _select_all(completing, frame[:PENDING], ray)
-        sent, children, tangent = self._node_term(node, frame, completing, tangent, adjoint)
+        own, sent, children, tangent = self._node_term(node, frame, completing, tangent,
+                                                       adjoint)
         has_children = mi.Bool(False)
         for child in children:
             has_children |= child.code != 0
@@ -151,7 +161,7 @@ class TreeWalk:
         pending = mi.UInt32(0)
         for child in children:
             pending += mi.UInt32(opens & (child.code != 0))
-        opened = node + (pending,) + (mi.Color3f(0),) * len(children)
+        opened = node + (pending, own) + (mi.Color3f(0),) * len(children)
         frame = _select_all(opens, opened, frame)
         depth = dr.select(opens, depth + 1, depth)
         size, ray = self._queue_children(rays, size, ray, node, children, opens)
@@ -175,29 +185,34 @@ class TreeWalk:
                 radiance, tangent)
 
     def _node_term(self, node, frame, completing, tangent, adjoint):
-        """Shade ``node`` and take the derivative of its term where it is
-        done: a node without children, or one ``completing`` (its children's
-        radiances in ``frame``). The radiance it sends back (detached), its
-        children, and the tangent with its term's added (forward mode)."""
+        """Shade ``node`` and take the derivative of its part of the term:
+        visited, of its own radiance; ``completing`` (its children's
+        radiances in ``frame``), of its children's weights, shaded again
+        for those alone (no lights, no emission). Its own radiance and the
+        radiance it sends back (where it is done; detached), its children,
+        and the tangent with the derivative added (forward mode)."""
         o, d, throughput, key, generation, _ = node
         traced = mi.Ray3f(o, d)
         si = self.intersect(traced, mi.Bool(True), coherent=True)
+        visiting = ~completing
+        work = self.shader.work(generation)
+        work = dataclasses.replace(work, emit=_where(work.emit, visiting),
+                                   light=_where(work.light, visiting))
         with dr.resume_grad():
-            shaded = self.shader.shade(si, traced, throughput, key,
-                                       self.shader.work(generation), generation)
-            sent = shaded.own if shaded.own is not None else mi.Color3f(0)
-            has_children = mi.Bool(False)
-            for child, returned in zip(shaded.children, frame[PENDING + 1:]):
-                spawned = child.code != 0
-                has_children |= spawned
-                sent = sent + dr.select(spawned, child.weight * returned, 0)
-            term = dr.select(completing | ~has_children, throughput * sent, 0)
+            shaded = self.shader.shade(si, traced, throughput, key, work, generation)
+            own = shaded.own if shaded.own is not None else mi.Color3f(0)
+            returned = mi.Color3f(0)
+            for child, radiance in zip(shaded.children, frame[RETURNED:]):
+                returned += dr.select(child.code != 0, child.weight * radiance, 0)
+            term = throughput * dr.select(completing, returned, own)
             if adjoint is None:
                 tangent = tangent + dr.forward_to(term)
             else:
                 dr.backward_from(adjoint * term)
+        own = dr.detach(own)
+        sent = dr.select(completing, frame[OWN] + dr.detach(returned), own)
         children = [_detached(child) for child in shaded.children]
-        return dr.detach(sent), children, tangent
+        return own, sent, children, tangent
 
     def _queue_children(self, rays, size, ray, node, children, opens):
         """Where ``opens``: the last spawned child in registers, the earlier
@@ -214,6 +229,11 @@ class TreeWalk:
         return size, following
 
 
+def _where(part, mask: mi.Bool):
+    """A part of a hit's work (``False``, or a mask) kept where ``mask``."""
+    return False if part is False else part & mask
+
+
 def _detached(child):
     """A child with no derivative: rays and throughputs the walk holds."""
     child.o, child.d = dr.detach(child.o), dr.detach(child.d)
@@ -225,6 +245,6 @@ def _delivered(frame: tuple, slot: mi.UInt32, sent: mi.Color3f, active: mi.Bool)
     """``frame`` with ``sent`` as the radiance of child ``slot`` and one
     child fewer pending, where ``active``."""
     returned = tuple(dr.select(active & (slot == k), sent, value)
-                     for k, value in enumerate(frame[PENDING + 1:]))
+                     for k, value in enumerate(frame[RETURNED:]))
     pending = dr.select(active, frame[PENDING] - 1, frame[PENDING])
-    return frame[:PENDING] + (pending,) + returned
+    return frame[:PENDING] + (pending, frame[OWN]) + returned
