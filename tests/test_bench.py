@@ -7,6 +7,7 @@ import json
 import statistics
 
 import numpy as np
+import pytest
 
 from conftest import cli
 from mitsuba_whitted.bench.equal_error import HEADLINE
@@ -59,7 +60,11 @@ def test_bench_quick_writes_every_figure(tmp_path):
         assert headline["speedup"][metric]["median"] > 0
         assert headline["verdict"][metric] in ("faster", "slower", "tie")
     gradient = figures["gradient"]
-    assert gradient["timing"]["parameters"] > 0 and gradient["timing"]["ratio"] > 0
+    timing = gradient["timing"]
+    assert timing["parameters"] > 0 and timing["replay"] == "tree"
+    assert 0 < timing["ratio"]["low"] <= timing["ratio"]["median"] <= timing["ratio"]["high"]
+    assert timing["ratio"]["median"] == pytest.approx(
+        timing["gradient_s"]["median"] / timing["render_s"]["median"])
     assert all(mib > 0 for mib in gradient["peak_rss_mib"].values())
     assert gradient["equal_error"]["prb"][0]["rel_error"] > 0
     table = result.stdout
