@@ -671,3 +671,102 @@ def test_gradient_is_of_the_image_mi_render_returned():
     assert gradients_by_seed[3][0, 0] != gradients_by_seed[4][0, 0]
     large = mi.render(loaded, seed=int(mi.sample_tea_32(mi.UInt32(3), mi.UInt32(1))[0][0]))
     assert np.isfinite(np.asarray(large)).all()
+
+
+# ------------------------------------------- the render's launches, kept
+
+
+def kept_gradient(described, key, before_backward=None):
+    """The gradient of ``key`` after ``mi.render``, with
+    ``before_backward(loaded, params)`` run in between; and whether the
+    render's kept launches were still there when the derivative began."""
+    loaded = load(described)
+    params = mi.traverse(loaded)
+    dr.enable_grad(params[key])
+    params.update()
+    image = mi.render(loaded, params)
+    kept = loaded.integrator()._state.kept is not None
+    if before_backward is not None:
+        before_backward(loaded, params)
+    dr.backward(dr.sum(image[..., :3], axis=None))
+    return _flat(dr.grad(params[key])), kept
+
+
+ADAPTIVE = dict(size=16, aa="adaptive")
+TRANSMITTANCE = "lens.bsdf.specular_transmittance.value"
+
+
+def test_the_derivative_reads_the_render_s_launches_for_the_same_bits():
+    """The derivative's anti-aliasing reads the radiance the render traced
+    instead of tracing it again: the same gradient, bit for bit, as with
+    the launches dropped."""
+    def drop(loaded, params):
+        loaded.integrator()._state.kept = None
+
+    read, kept = kept_gradient(gallery(**ADAPTIVE), TRANSMITTANCE)
+    traced, _ = kept_gradient(gallery(**ADAPTIVE), TRANSMITTANCE, drop)
+    assert kept
+    assert np.array_equal(read, traced)
+
+
+def test_a_parameter_changed_after_the_render_is_not_read_from_its_launches():
+    """A parameter updated between the render and its derivative (the
+    glass's transmittance, which the anti-aliasing sees): the derivative
+    traces, and equals that of a scene loaded with the new value."""
+    from mitsuba_whitted.integrators.kept_launches import fingerprint
+    new = (0.5, 0.6, 0.9)
+
+    def update(loaded, params):
+        kept, sensor = loaded.integrator()._state.kept, loaded.sensors()[0]
+        assert kept.key == fingerprint(loaded, sensor, 0)
+        params[TRANSMITTANCE] = mi.Color3f(*new)
+        params.update()
+        dr.enable_grad(params[TRANSMITTANCE])
+        assert kept.key != fingerprint(loaded, sensor, 0)
+
+    changed, _ = kept_gradient(gallery(**ADAPTIVE), TRANSMITTANCE, update)
+    described = gallery(**ADAPTIVE)
+    described["lens"]["bsdf"] = glass(new)
+    expected, _ = kept_gradient(described, TRANSMITTANCE)
+    assert np.array_equal(changed, expected)
+
+
+def test_launches_that_do_not_match_make_the_derivative_trace_them():
+    """Kept launches whose first samples differ from the derivative's (its
+    keys altered): no kept launch is read, the derivative starts again,
+    tracing, and gives the gradient of launches not kept, bit for bit."""
+    read = []
+
+    def alter(loaded, params):
+        kept = loaded.integrator()._state.kept
+        keys, outputs = kept.launches[0]
+        kept.launches[0] = (keys + 1, outputs)
+        reader = kept.reader
+
+        def counting_reader():
+            inner = reader()
+
+            def counted(keys):
+                outputs = inner(keys)
+                read.append(dr.width(keys))
+                return outputs
+            return counted
+        kept.reader = counting_reader
+
+    def drop(loaded, params):
+        loaded.integrator()._state.kept = None
+
+    altered, _ = kept_gradient(gallery(**ADAPTIVE), TRANSMITTANCE, alter)
+    traced, _ = kept_gradient(gallery(**ADAPTIVE), TRANSMITTANCE, drop)
+    assert read == []
+    assert np.array_equal(altered, traced)
+
+
+def test_a_render_too_large_to_keep_keeps_nothing(monkeypatch):
+    from mitsuba_whitted.integrators import kept_launches
+    monkeypatch.setattr(kept_launches, "KEPT_BYTES", 16 * 16 * kept_launches.SAMPLE_BYTES)
+    gradient, kept = kept_gradient(gallery(**ADAPTIVE), TRANSMITTANCE)
+    assert not kept
+    monkeypatch.undo()
+    expected, kept = kept_gradient(gallery(**ADAPTIVE), TRANSMITTANCE)
+    assert kept and np.array_equal(gradient, expected)

@@ -414,15 +414,23 @@ class RecordingShader(CameraShader):
     lens)`` and nothing else is kept: the band's pixels, made of the
     leaves, keep them in their AD graph until the band's tangent is taken.
     Without one (reverse mode), each launch (:class:`_Launch`) is kept in
-    ``launches`` until the caller has the band's adjoints and empties it."""
+    ``launches`` until the caller has the band's adjoints and empties it.
+    ``read``, where given, reads each launch's radiance and alpha from the
+    render's kept launches (:mod:`.kept_launches`) instead of tracing."""
 
-    def __init__(self, tracer, sensor, progress=None, indirect_samples=0, tangent=None):
+    def __init__(self, tracer, sensor, progress=None, indirect_samples=0, tangent=None,
+                 read=None):
         super().__init__(tracer, sensor, progress, indirect_samples)
         self.tangent = tangent
+        self.read = read
         self.launches = []
 
     def __call__(self, positions, keys, lens=None, share=1):
-        radiance, alpha = super().__call__(positions, keys, lens, share)
+        if self.read is None:
+            radiance, alpha = super().__call__(positions, keys, lens, share)
+        else:
+            radiance, alpha = self.read(keys)
+            self._report(dr.width(keys), dr.width(keys))
         leaf = mi.Color3f(radiance)
         dr.enable_grad(leaf)
         if self.tangent is not None:

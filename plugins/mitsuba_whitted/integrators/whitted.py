@@ -32,6 +32,7 @@ from .scene_ref import identity, plain_values
 from .settings import (AA_MODES, PLUGIN_NAME, SETTINGS, SHADOW_MODES, UNBOUNDED_DEPTH, Exposed,
                        read_settings, require_supported_variant, seed_value, validate)
 from .shading import MAX_TREE_RAYS, TreeSettings
+from .kept_launches import KeepingShader, KeptLaunches, LaunchesDiffer, fingerprint
 from .tracers import RayBatch, build_tracer
 from .tracers.tree_replay import ReplayRefused
 
@@ -296,9 +297,21 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         def take(band, radiance, alpha):
             film.put_block(image_block(film, band, radiance, alpha, channels))
 
+        kept = self._keeping(scene, sensor, seed)
         self.render_bands(scene, sensor, seed, take, film_entries(film, channels, develop),
-                          prepare=lambda: film.prepare([]))
+                          prepare=lambda: film.prepare([]),
+                          shader=None if kept is None else partial(KeepingShader, kept=kept))
+        self._state.kept = kept if kept is not None and kept.complete else None
         return film.develop() if develop else mi.TensorXf()
+
+    def _keeping(self, scene: mi.Scene, sensor: mi.Sensor, seed: int):
+        """The :class:`.kept_launches.KeptLaunches` a render fills for its
+        derivative, in a variant with derivatives and without indirect
+        light (which is not differentiated); else ``None``."""
+        self._state.kept = None
+        if not dr.is_diff_v(mi.Float) or self.indirect_samples:
+            return None
+        return KeptLaunches(fingerprint(scene, sensor, seed))
 
     # ------------------------------------------------------------- gradients
 
@@ -306,11 +319,11 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     def render_forward(self, scene: mi.Scene, params, sensor=0, seed=0, spp=0):
         """The derivative of ``render``'s image along the tangents of the
         parameters of ``params`` (:mod:`.gradients`), as a film's image."""
-        return self._refused_trees_retried(self._render_forward, scene, params, sensor, seed,
-                                           spp)
+        return self._started_again_if_refused(self._render_forward, scene, params, sensor, seed,
+                                              spp)
 
     def _render_forward(self, scene: mi.Scene, params, sensor, seed, spp):
-        sensor, seed, replay, keys = self._gradient_setup(scene, params, sensor, seed, spp)
+        sensor, seed, replay, keys, read = self._gradient_setup(scene, params, sensor, seed, spp)
         film = sensor.film()
         channels = film_channels(film)
 
@@ -328,7 +341,8 @@ class WhittedIntegrator(mi.SamplingIntegrator):
 
             self.render_bands(scene, sensor, seed, take, film_entries(film, channels),
                               prepare=lambda: film.prepare([]),
-                              shader=partial(gradients.RecordingShader, tangent=tangent))
+                              shader=partial(gradients.RecordingShader, tangent=tangent,
+                                             read=read))
         return film.develop()
 
     @one_at_a_time
@@ -337,16 +351,16 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         """Add to the gradients of the parameters of ``params`` the
         derivative of ``render``'s image weighed by ``grad_in``, an image
         of adjoints (:mod:`.gradients`)."""
-        self._refused_trees_retried(self._render_backward, scene, params, grad_in, sensor, seed,
-                                    spp)
+        self._started_again_if_refused(self._render_backward, scene, params, grad_in, sensor,
+                                       seed, spp)
 
     def _render_backward(self, scene: mi.Scene, params, grad_in, sensor, seed, spp) -> None:
-        sensor, seed, replay, keys = self._gradient_setup(scene, params, sensor, seed, spp)
+        sensor, seed, replay, keys, read = self._gradient_setup(scene, params, sensor, seed, spp)
         adjoint = adjoint_pixels(grad_in, sensor.film())
         shaders = []
 
         def shader(*args):
-            shaders.append(gradients.RecordingShader(*args))
+            shaders.append(gradients.RecordingShader(*args, read=read))
             return shaders[-1]
 
         with gradients.StandIns(params, keys, tangents=False) as stand_ins, \
@@ -360,23 +374,29 @@ class WhittedIntegrator(mi.SamplingIntegrator):
 
             self.render_bands(scene, sensor, seed, take, film_entries=0, shader=shader)
 
-    def _refused_trees_retried(self, derivative, *args):
-        """``derivative(*args)``, taken again by the graph replay if Dr.Jit
-        refused to record the tree replay's kernels (which happens before
-        any of them ran, and leaves the parameters' gradients as they
-        were: the stand-ins' are dropped)."""
-        try:
-            return derivative(*args)
-        except ReplayRefused:
-            self._state.replay_refused = self._state.replay_built_from
-            return derivative(*args)
+    def _started_again_if_refused(self, derivative, *args):
+        """``derivative(*args)``, started again without what was refused:
+        the tree replay, whose kernels Dr.Jit refused to record (the graph
+        replay takes over), or the render's kept launches, which the
+        derivative's sampler did not ask for (it traces). Either is
+        refused before the parameters' gradients change: the stand-ins'
+        gradients are dropped."""
+        for _ in range(2):
+            try:
+                return derivative(*args)
+            except ReplayRefused:
+                self._state.replay_refused = self._state.replay_built_from
+            except LaunchesDiffer:
+                self._state.kept = None
+        return derivative(*args)
 
     def _gradient_setup(self, scene: mi.Scene, params, sensor, seed, spp):
         """The sensor, the seed of the image to differentiate, a
-        :class:`.gradients.Replay` of its samples and the keys of the
-        differentiated parameters, once the variant, the settings and
-        ``params`` are found differentiable and the tile traced again with
-        AD is found to fit beside the render."""
+        :class:`.gradients.Replay` of its samples, the keys of the
+        differentiated parameters and the reader of the render's kept
+        launches (``None`` unless they are this image's), once the variant,
+        the settings and ``params`` are found differentiable and the tile
+        traced again is found to fit beside the render."""
         gradients.require_differentiable(self.indirect_samples)
         keys = gradients.differentiated(params)
         sensor = sensor_of(scene, sensor)
@@ -385,7 +405,11 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         replay = self._replay_for(scene, seed, sensor)
         demand = self._demand(sensor.film(), self._tracer_for(scene, seed), 0, 0)
         plan_render(gradients.tile_demand(demand, replay), self.limits)
-        return sensor, seed, replay, keys
+        kept = self._state.kept
+        read = None
+        if kept is not None and kept.key == fingerprint(scene, sensor, seed):
+            read = kept.reader()
+        return sensor, seed, replay, keys, read
 
     @one_at_a_time
     def render_rows(self, scene: mi.Scene, take, sensor=0, seed=0, held_bytes: int = 0) -> None:
@@ -593,14 +617,16 @@ class _RenderState:
     last render left (see the integrator's ``last_*``), and the warnings
     already given."""
 
-    __slots__ = ("built_from", "tracer", "replay_built_from", "replay", "replay_refused", "stats",
-                 "sample_map", "rays", "noted", "seed")
+    __slots__ = ("built_from", "tracer", "replay_built_from", "replay", "replay_refused", "kept",
+                 "stats", "sample_map", "rays", "noted", "seed")
 
     def __init__(self):
         self.built_from = self.tracer = self.sample_map = self.rays = None
         #: The last derivative's replay (``_replay_for``), and what the
         #: tree replay Dr.Jit refused was built from.
         self.replay_built_from = self.replay = self.replay_refused = None
+        #: The last render's launches (:mod:`.kept_launches`), if kept.
+        self.kept = None
         #: The seed of the last ``render`` (``gradients`` differentiate its image).
         self.seed = 0
         self.stats = {}
