@@ -62,6 +62,9 @@ def test_bench_quick_writes_every_figure(tmp_path):
     gradient = figures["gradient"]
     timing = gradient["timing"]
     assert timing["parameters"] > 0 and timing["replay"] == "tree"
+    # The replay walks the render's trees, and traces some nodes again.
+    assert timing["replay_rays"]["walked"] == timing["render_rays"] > 0
+    assert 0 < timing["replay_rays"]["walked again"] < timing["render_rays"]
     assert 0 < timing["ratio"]["low"] <= timing["ratio"]["median"] <= timing["ratio"]["high"]
     assert timing["ratio"]["median"] == pytest.approx(
         timing["gradient_s"]["median"] / timing["render_s"]["median"])

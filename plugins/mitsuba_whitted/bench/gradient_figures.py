@@ -90,6 +90,10 @@ class GradientTiming:
     parameters: int
     entries: int
     replay: str
+    #: Rays the tree replay walked and walked again (empty for the graph
+    #: replay), and those the render traced, in the last round.
+    replay_rays: dict
+    render_rays: int
     first_gradient_s: float
     render_s: Estimate
     gradient_s: Estimate
@@ -107,9 +111,13 @@ def gradient_timing(scene_path: Path, defines: dict, settings: dict,
         renders += timed(lambda: mi.render(scene), 1)[1]
         steps += timed(step, 1)[1]
     render, gradient = median_estimate(renders), median_estimate(steps)
+    whitted = scene.integrator()
+    stats = whitted.last_stats
+    traced = sum(stats[kind] for kind in ("camera", "reflection", "refraction",
+                                          "passthrough")) - stats["cut"]
     return GradientTiming(len(step.keys), sum(_entries(step.params[key]) for key in step.keys),
-                          scene.integrator().last_replay, first, render, gradient,
-                          quotient(gradient, render))
+                          whitted.last_replay, whitted.last_replay_rays, traced, first, render,
+                          gradient, quotient(gradient, render))
 
 
 def equivalence_scene(resolution: int) -> dict:
@@ -268,6 +276,16 @@ def measure_gradients(scene_path: Path, defines: dict, scene_settings: dict, rep
                            equal_error_gradient(*equal_error, repeats=repeats))
 
 
+def _replay_rays_line(timing: GradientTiming) -> list:
+    """The rays the tree replay walked beside the render's (none for the
+    graph replay)."""
+    if not timing.replay_rays:
+        return []
+    walked, again = timing.replay_rays["walked"], timing.replay_rays["walked again"]
+    return [f"    its replay walked {walked:,} rays (the render traced {timing.render_rays:,} "
+            f"besides shadow rays) and traced {again:,} of them again ({again / walked:.0%})"]
+
+
 def format_lines(figures: GradientFigures) -> list:
     """The gradient figures as lines of the bench's table."""
     eq, timing = figures.equal_error, figures.timing
@@ -277,6 +295,7 @@ def format_lines(figures: GradientFigures) -> list:
         f"{estimate_text(timing.gradient_s, ' s', 3)} = {estimate_text(timing.ratio, ' x')} "
         f"the render ({estimate_text(timing.render_s, ' s', 3)} in those rounds; target 5 x); "
         f"first {timing.first_gradient_s:.3f} s",
+        *_replay_rays_line(timing),
         "  gradient peak RSS: " + ", ".join(f"{res} px {mib:,.0f} MiB"
                                           for res, mib in figures.peak_rss_mib.items())]
     lines += [

@@ -62,6 +62,7 @@ from dataclasses import dataclass
 
 import drjit as dr
 import mitsuba as mi
+import numpy as np
 
 from ..camera import camera_rays
 from ..errors import ParameterError, VariantError, check
@@ -282,6 +283,12 @@ class Replay:
     def __init__(self, tracer, sensor: mi.Sensor):
         self.tracer = tracer
         self.sensor = sensor
+        #: Rays of the last derivative by kind, where the replay counts them.
+        self.rays = {}
+
+    def start(self) -> None:
+        """Ready for another derivative."""
+        self.tracer.reload()
 
     def _rays(self, positions, keys, lens, part) -> RayBatch:
         """The camera rays of the samples ``part``, without derivative."""
@@ -307,6 +314,12 @@ class TreeReplay(Replay):
         super().__init__(tracer, sensor)
         self.tile = tracer.camera_batch
         self.walk = TreeWalk(tracer)
+
+    def start(self) -> None:
+        """Ready for another derivative: its ray counts start at 0 (the
+        rays its backward walks trace, and those traced again)."""
+        super().start()
+        self.rays = {"walked": 0, "walked again": 0}
 
     def tangent(self, positions, keys, lens, sources: list) -> mi.Color3f:
         """The samples' radiance tangent, from ``sources``: pairs of a
@@ -341,8 +354,10 @@ class TreeReplay(Replay):
             part_adjoint = dr.gather(mi.Color3f, adjoint, part)
             dr.eval(rays.fields(), part_adjoint)
             with dr.resume_grad(), _one_thread():
-                self.walk.backward(rays, part_adjoint, parameters)
+                walked = self.walk.backward(rays, part_adjoint, parameters)
                 dr.eval([dr.grad(parameter) for parameter in parameters])
+            self.rays["walked"] += _total(walked.visited)
+            self.rays["walked again"] += _total(walked.revisited)
 
 
 class GraphReplay(Replay):
@@ -438,6 +453,10 @@ class RecordingShader(CameraShader):
         else:
             self.launches.append(_Launch(positions, keys, lens, leaf))
         return leaf, alpha
+
+
+def _total(counts: mi.UInt32) -> int:
+    return int(counts.numpy().sum(dtype=np.int64))
 
 
 def sample_adjoints(launches: list, radiance: mi.Color3f, adjoint: mi.Color3f):

@@ -197,6 +197,14 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         return None if replay is None else replay.kind
 
     @property
+    def last_replay_rays(self) -> dict:
+        """Rays the last derivative's tree replay walked, and walked again
+        (each node with children, once they were done); empty for the
+        graph replay."""
+        replay = self._state.replay
+        return {} if replay is None else dict(replay.rays)
+
+    @property
     def last_sample_map(self):
         """Camera samples per pixel of the last adaptive or contrast render
         (mi.UInt32)."""
@@ -264,12 +272,11 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         if built_from == state.replay_refused:
             kind = "graph"
             built_from = built_from + (kind,)
-        if state.replay_built_from == built_from:
-            state.replay.tracer.reload()
-            state.replay.sensor = sensor
-            return state.replay
-        tracer = self.make_tracer(scene, seed, needs=needs, differentiable=kind)
-        state.replay_built_from, state.replay = built_from, gradients.replay_of(tracer, sensor)
+        if state.replay_built_from != built_from:
+            tracer = self.make_tracer(scene, seed, needs=needs, differentiable=kind)
+            state.replay_built_from, state.replay = built_from, gradients.replay_of(tracer, sensor)
+        state.replay.sensor = sensor
+        state.replay.start()
         return state.replay
 
     def _built_from(self, scene: mi.Scene, needs: SceneNeeds, seed: int, *kind) -> tuple:

@@ -129,7 +129,7 @@ class Tracer:
         """Fresh statistics, and the tables the kernels read besides the
         scene and the rays."""
         self.stats = RayStats()
-        self._kernel_inputs = self.refiner.tables() if self.refiner is not None else ()
+        self.kernel_inputs = self.refiner.tables() if self.refiner is not None else ()
 
     @property
     def camera_batch(self) -> int:

@@ -148,7 +148,7 @@ class DepthFirstTracer(Tracer):
         """Radiance and alpha (primary hit) of each ray, and with indirect
         light its gathered part (see ``Tracer.trace``)."""
         self._count_batch(len(rays))
-        return self._launch_ray_kernel(self.shader.scene, self._kernel_inputs,
+        return self._launch_ray_kernel(self.shader.scene, self.kernel_inputs,
                                        *rays.fields(), rays.paths)
 
     def trace_camera(self, sensor: mi.Sensor, positions: mi.Point2f, keys: mi.UInt32,
@@ -159,7 +159,7 @@ class DepthFirstTracer(Tracer):
         self._count_batch(dr.width(keys))
         self._save_totals(self._camera_kernel)
         return self._camera_kernel(dr.width(keys), self.shader.scene, sensor,
-                                   self._kernel_inputs, self._counts, self._deepest,
+                                   self.kernel_inputs, self._counts, self._deepest,
                                    positions, keys, lens, paths)
 
     def _trace_camera_rays(self, scene, sensor, inputs, counts, deepest, positions, keys,

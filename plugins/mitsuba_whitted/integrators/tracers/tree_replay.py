@@ -41,6 +41,7 @@ runs on every thread.
 from __future__ import annotations
 
 import dataclasses
+from dataclasses import dataclass
 
 import drjit as dr
 import mitsuba as mi
@@ -59,6 +60,18 @@ RAY_TYPES = (mi.Point3f, mi.Vector3f, mi.Color3f, mi.UInt32, mi.UInt32, mi.UInt3
 PENDING = len(RAY_TYPES)
 OWN = PENDING + 1
 RETURNED = OWN + 1
+#: How each node's derivative is taken.
+ANY_TERM = dr.ADFlag.Default | dr.ADFlag.AllowNoGrad
+
+
+@dataclass
+class Walked:
+    """Per ray: its tree's radiance, summed from the leaves up, the rays the
+    walk traced (the tree's, as the depth-first tracer traces them) and
+    those it traced again (each node with children, once they were done)."""
+    radiance: mi.Color3f
+    visited: mi.UInt32
+    revisited: mi.UInt32
 
 
 class ReplayRefused(Error):
@@ -88,17 +101,17 @@ class TreeWalk:
         self._backward = FrozenKernel(self._backward_kernel, "gradient replay", fallback=refusal)
         self._forward = FrozenKernel(self._forward_kernel, "gradient replay", fallback=refusal)
 
-    def backward(self, rays, adjoint: mi.Color3f, sources: list) -> mi.Color3f:
+    def backward(self, rays, adjoint: mi.Color3f, sources: list) -> "Walked":
         """Add to the gradients of the scene's parameters (and of
-        ``sources``) that of the rays' radiance weighed by ``adjoint``; the
-        radiance, summed as the replay does."""
-        return self._backward(len(rays), self.shader.scene, self.tracer._kernel_inputs,
+        ``sources``) that of the rays' radiance weighed by ``adjoint``;
+        what the walk found (:class:`Walked`)."""
+        return self._backward(len(rays), self.shader.scene, self.tracer.kernel_inputs,
                               sources, *rays.fields(), adjoint)
 
     def forward(self, rays, sources: list) -> mi.Color3f:
         """The tangent of the rays' radiance along the gradients the
         parameters (and ``sources``) hold."""
-        return self._forward(len(rays), self.shader.scene, self.tracer._kernel_inputs,
+        return self._forward(len(rays), self.shader.scene, self.tracer.kernel_inputs,
                              sources, *rays.fields())
 
     def _refuse(self, *args):
@@ -108,25 +121,25 @@ class TreeWalk:
         # The loop itself is not differentiated: its body takes each node's
         # derivative in a scope of its own (``_node_term``).
         with dr.suspend_grad():
-            radiance, _ = self._walk(o, d, throughput, key, adjoint)
-        return radiance
+            radiance, _, visited, revisited = self._walk(o, d, throughput, key, adjoint)
+        return Walked(radiance, visited, revisited)
 
     def _forward_kernel(self, scene, inputs, sources, o, d, throughput, key):
         with dr.suspend_grad():
-            _, tangent = self._walk(o, d, throughput, key, None)
+            _, tangent, _, _ = self._walk(o, d, throughput, key, None)
         return tangent
 
     @dr.syntax
     def _walk(self, o, d, throughput, key, adjoint):
-        """Walk each ray's tree; the radiance, and the tangent where
-        ``adjoint`` is ``None`` (forward mode; else each node's derivative
-        is sent back weighed by ``adjoint``)."""
+        """Walk each ray's tree; the radiance, the tangent where ``adjoint``
+        is ``None`` (forward mode; else each node's derivative is sent back
+        weighed by ``adjoint``), and the rays traced and traced again."""
         rays = LaneStack.allocate(RAY_TYPES, self.ray_capacity)
         frames = LaneStack.allocate(self.frame_types, self.frame_capacity)
         zero = mi.UInt32(0)
         ray = (o, d, throughput, key, zero, zero)
         frame = ray + (zero,) + (mi.Color3f(0),) * (1 + self.shader.fan_out)
-        walk = (mi.UInt32(0), mi.UInt32(0), mi.UInt32(0), mi.UInt32(0))
+        walk = (mi.UInt32(0),) * 5
         completing = mi.Bool(False)
         cut = mi.Bool(False)
         live = mi.Bool(True)
@@ -136,14 +149,15 @@ class TreeWalk:
             ray, frame, walk, completing, cut, live, radiance, tangent = self._step(
                 rays, frames, ray, frame, walk, completing, cut, live, radiance, tangent,
                 adjoint)
-        return radiance, tangent
+        return radiance, tangent, walk[3], walk[4]
 
     def _step(self, rays, frames, ray, frame, walk, completing, cut, live, radiance,
               tangent, adjoint):
         """One node: the next ray of the walk, or (``completing``) the node
         of the frame in registers, whose children are all done. ``walk``:
-        sizes of the two stacks, open frames, rays visited."""
-        size, frames_size, depth, visited = walk
+        sizes of the two stacks, open frames, rays visited and visited
+        again (completed frames)."""
+        size, frames_size, depth, visited, revisited = walk
         node = _select_all(completing, frame[:PENDING], ray)
         own, sent, children, tangent = self._node_term(node, frame, completing, tangent,
                                                        adjoint)
@@ -153,6 +167,7 @@ class TreeWalk:
         opens = ~completing & has_children
         done = ~opens
         visited = dr.select(completing, visited, visited + 1)
+        revisited = dr.select(completing, revisited + 1, revisited)
         cut |= visited >= MAX_TREE_RAYS
 
         # A node with children opens a frame; its last child goes next, the
@@ -181,8 +196,8 @@ class TreeWalk:
         finished = delivers & ((frame[PENDING] == 0) | cut)
         ray, size, _ = rays.pop(size, ray, delivers & ~finished)
         completing = finished | (opens & cut)
-        return (ray, frame, (size, frames_size, depth, visited), completing, cut, live,
-                radiance, tangent)
+        return (ray, frame, (size, frames_size, depth, visited, revisited), completing, cut,
+                live, radiance, tangent)
 
     def _node_term(self, node, frame, completing, tangent, adjoint):
         """Shade ``node`` and take the derivative of its part of the term:
@@ -205,10 +220,12 @@ class TreeWalk:
             for child, radiance in zip(shaded.children, frame[RETURNED:]):
                 returned += dr.select(child.code != 0, child.weight * radiance, 0)
             term = throughput * dr.select(completing, returned, own)
+            # Allowed to depend on no parameter: a derivative may ask for
+            # parameters that no hit reads.
             if adjoint is None:
-                tangent = tangent + dr.forward_to(term)
+                tangent = tangent + dr.forward_to(term, flags=ANY_TERM)
             else:
-                dr.backward_from(adjoint * term)
+                dr.backward_from(adjoint * term, flags=ANY_TERM)
         own = dr.detach(own)
         sent = dr.select(completing, frame[OWN] + dr.detach(returned), own)
         children = [_detached(child) for child in shaded.children]

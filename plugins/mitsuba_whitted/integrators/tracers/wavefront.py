@@ -125,7 +125,7 @@ class WavefrontTracer(Tracer):
         # The generation as an opaque value: the indirect paths' length
         # depends on it, and one frozen kernel serves every generation.
         kernel, arguments = self._kernel(work), (len(rays), self.shader.scene,
-                                                 self._kernel_inputs, *rays.fields(),
+                                                 self.kernel_inputs, *rays.fields(),
                                                  rays.paths, dr.opaque(mi.UInt32, generation))
         outputs = kernel(*arguments, log)
         if log is not None and log.make_room():
