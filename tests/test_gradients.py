@@ -770,3 +770,17 @@ def test_a_render_too_large_to_keep_keeps_nothing(monkeypatch):
     monkeypatch.undo()
     expected, kept = kept_gradient(gallery(**ADAPTIVE), TRANSMITTANCE)
     assert kept and np.array_equal(gradient, expected)
+
+
+def test_a_derivative_leaves_the_render_s_statistics():
+    """``last_stats`` is the render's after its derivative too, which reads
+    the kept launches and traces no camera sample of its own."""
+    loaded = load(gallery(**ADAPTIVE))
+    params = mi.traverse(loaded)
+    dr.enable_grad(params[TRANSMITTANCE])
+    params.update()
+    image = mi.render(loaded, params)
+    rendered = dict(loaded.integrator().last_stats)
+    dr.backward(dr.sum(image, axis=None))
+    assert rendered["camera"] > 0 and rendered["aa_levels"] > 0
+    assert loaded.integrator().last_stats == rendered

@@ -349,7 +349,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
             self.render_bands(scene, sensor, seed, take, film_entries(film, channels),
                               prepare=lambda: film.prepare([]),
                               shader=partial(gradients.RecordingShader, tangent=tangent,
-                                             read=read))
+                                             read=read), derivative=True)
         return film.develop()
 
     @one_at_a_time
@@ -379,7 +379,8 @@ class WhittedIntegrator(mi.SamplingIntegrator):
                 launches.clear()
                 replay.backward(*samples, stand_ins.leaves())
 
-            self.render_bands(scene, sensor, seed, take, film_entries=0, shader=shader)
+            self.render_bands(scene, sensor, seed, take, film_entries=0, shader=shader,
+                              derivative=True)
 
     def _started_again_if_refused(self, derivative, *args):
         """``derivative(*args)``, started again without what was refused:
@@ -442,13 +443,14 @@ class WhittedIntegrator(mi.SamplingIntegrator):
 
     def render_bands(self, scene: mi.Scene, sensor: mi.Sensor, seed, take,
                      film_entries: int, prepare=None, held_bytes: int = 0,
-                     shader=None) -> None:
+                     shader=None, derivative: bool = False) -> None:
         """Trace the crop window band by band (:mod:`.render_plan`) and hand
         each band's radiance and alpha to ``take(band, radiance, alpha)``.
         ``film_entries``: the floats the caller's film holds; ``prepare()``
         runs once the render is known to fit, before anything large is
         allocated; ``shader(tracer, sensor, progress)`` makes what traces the
-        camera samples (a :class:`CameraShader` if not given)."""
+        camera samples (a :class:`CameraShader` if not given); a
+        ``derivative``'s pass leaves ``last_stats`` as the render left it."""
         check_emitters(scene)
         aperture = has_aperture(sensor)
         if self.aa == "none" and aperture:
@@ -478,7 +480,8 @@ class WhittedIntegrator(mi.SamplingIntegrator):
                 take(band, radiance, alpha)
                 total.add(count)
                 progress.end_band()
-        self._record(tracer, total, plan)
+        if not derivative:
+            self._record(tracer, total, plan)
 
     def _demand(self, film: mi.Film, tracer, film_entries: int, held_bytes: int) -> Demand:
         """What a render of ``film`` asks of memory (:mod:`.render_plan`)."""
