@@ -763,13 +763,20 @@ def test_launches_that_do_not_match_make_the_derivative_trace_them():
 
 
 def test_a_render_too_large_to_keep_keeps_nothing(monkeypatch):
+    """Launches past KEPT_BYTES, or past an eighth of the memory available,
+    are not kept: the derivative traces, with the same bits."""
     from mitsuba_whitted.integrators import kept_launches
-    monkeypatch.setattr(kept_launches, "KEPT_BYTES", 16 * 16 * kept_launches.SAMPLE_BYTES)
-    gradient, kept = kept_gradient(gallery(**ADAPTIVE), TRANSMITTANCE)
-    assert not kept
-    monkeypatch.undo()
+    one_launch = 16 * 16 * kept_launches.SAMPLE_BYTES
     expected, kept = kept_gradient(gallery(**ADAPTIVE), TRANSMITTANCE)
-    assert kept and np.array_equal(gradient, expected)
+    assert kept
+    monkeypatch.setattr(kept_launches, "KEPT_BYTES", one_launch)
+    gradient, kept = kept_gradient(gallery(**ADAPTIVE), TRANSMITTANCE)
+    assert not kept and np.array_equal(gradient, expected)
+    monkeypatch.undo()
+    from mitsuba_whitted.system import available_memory
+    monkeypatch.setattr(kept_launches, "MEMORY_SHARE", one_launch / available_memory())
+    gradient, kept = kept_gradient(gallery(**ADAPTIVE), TRANSMITTANCE)
+    assert not kept and np.array_equal(gradient, expected)
 
 
 def test_a_derivative_leaves_the_render_s_statistics():

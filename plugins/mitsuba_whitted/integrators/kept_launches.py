@@ -13,8 +13,9 @@ same plain value. Each launch's sample keys must match too, which they do
 only if the sampler placed the same samples; a launch that does not match
 makes the derivative start again, tracing.
 
-Kept only in variants with derivatives, and only up to :data:`KEPT_BYTES`:
-a larger render keeps none, and its derivative traces as before.
+Kept only in variants with derivatives, and only up to :data:`KEPT_BYTES`
+or an eighth of the memory available when the render starts, whichever is
+less: a larger render keeps none, and its derivative traces as before.
 """
 
 from __future__ import annotations
@@ -31,6 +32,8 @@ from .settings import PLUGIN_NAME
 #: 20 bytes, so about 13 million samples).
 KEPT_BYTES = 256 << 20
 SAMPLE_BYTES = 20
+#: Share of the available memory the kept launches may hold at most.
+MEMORY_SHARE = 1 / 8
 
 
 class LaunchesDiffer(Error):
@@ -58,11 +61,14 @@ def fingerprint(scene: mi.Scene, sensor: mi.Sensor, seed: int) -> tuple:
 
 class KeptLaunches:
     """The outputs of a render's launches (radiance, alpha) and their
-    samples' keys, in order, while they fit :data:`KEPT_BYTES`
-    (``complete`` false once they did not)."""
+    samples' keys, in order, while they fit in ``limit`` bytes
+    (``complete`` false once they did not). ``available``: the memory
+    available, in bytes (``None`` if unknown)."""
 
-    def __init__(self, key: tuple):
+    def __init__(self, key: tuple, available: int | None):
         self.key = key
+        self.limit = KEPT_BYTES if available is None else min(KEPT_BYTES,
+                                                              int(available * MEMORY_SHARE))
         self.launches = []
         self.bytes = 0
         self.complete = True
@@ -71,7 +77,7 @@ class KeptLaunches:
         if not self.complete:
             return
         self.bytes += dr.width(keys) * SAMPLE_BYTES
-        if self.bytes > KEPT_BYTES:
+        if self.bytes > self.limit:
             self.complete = False
             self.launches = []
             return

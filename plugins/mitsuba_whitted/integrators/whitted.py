@@ -318,7 +318,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         self._state.kept = None
         if not dr.is_diff_v(mi.Float) or self.indirect_samples:
             return None
-        return KeptLaunches(fingerprint(scene, sensor, seed))
+        return KeptLaunches(fingerprint(scene, sensor, seed), self.limits.memory())
 
     # ------------------------------------------------------------- gradients
 
