@@ -8,21 +8,33 @@ both are exact: no samples, no noise.
 
 How it is computed, band by band as ``render`` renders:
 
-1. The camera samples are placed by the render's own anti-aliasing, with
-   its own frozen tracer, so that its choices (which cells to split, which
-   pixels to refine) are those of the image. Each launch of samples comes
-   back as a fresh AD leaf: once its choices are made, a sampler combines
-   samples into pixels linearly (block means, refined cells replacing their
+1. The camera samples are placed by the render's own anti-aliasing, so
+   that its choices (which cells to split, which pixels to refine) are
+   those of the image. It decides by the radiance the render traced, which
+   the render kept (:mod:`.kept_launches`), or else traces the samples
+   again with its frozen tracer. Each launch of samples comes back as a
+   fresh AD leaf: once its choices are made, a sampler combines samples
+   into pixels linearly (block means, refined cells replacing their
    parents), and Dr.Jit differentiates that combination. Backward, the
    band's adjoint pixels give each sample's adjoint; forward, each sample's
    tangent gives the band's tangent pixels.
-2. Each sample's radiance is traced again, differentiably, by the
-   wavefront tracer unfrozen, in tiles of ``TILE_FACTOR x wavefront_size``
-   camera samples: only one tile's AD graph is kept, so memory follows the
-   tile size, not the film's. The gradient flows through the whole ray tree:
-   Fresnel weights, transmittances, the directions and hit points of
-   reflected and refracted rays, the shading, the lights, and the shadow
-   rays' crossings of glass.
+2. Each sample's ray tree is replayed for its derivative, tile by tile, by
+   one of two :class:`Replay` kinds (the integrator's ``gradient_replay``):
+
+   - :class:`TreeReplay`, where the depth-first tracer serves: frozen
+     kernels walk each tree again and differentiate one hit at a time
+     (:mod:`.tracers.tree_replay`), as Mitsuba's ``prb`` replays a path.
+     Nothing of a derivative outlives its hit, so a tile is a render's
+     launch.
+   - :class:`GraphReplay`: the wavefront tracer unfrozen, the whole trace of
+     a tile recorded by Dr.Jit's AD and differentiated at once, in tiles of
+     ``TILE_FACTOR x wavefront_size`` samples (memory follows the tile). It
+     serves trees too deep for the stacks, takes over where Dr.Jit refuses
+     to record the tree replay's kernels, and is its oracle in the tests.
+
+   Either way the gradient flows through the whole ray tree: Fresnel
+   weights, transmittances, the shading, the lights, and the shadow rays'
+   crossings of glass.
 
 The parameters being differentiated are replaced for the length of the
 derivative by fresh AD leaves of the same value (:class:`StandIns`), so
@@ -30,14 +42,15 @@ that what plugins derive from a parameter on an update (a bitmap's
 texture) is derived again inside the scope in which ``mi.render`` runs the
 derivative; their gradients are then added to the parameters' in one step.
 
-Dr.Jit 1.5 sets the modes. Reverse-mode AD goes through symbolic loops only
-by replaying stored iterations, which on the LLVM backend mis-compiles a
-stored mask and fails on a state variable of width one and on nested loops:
-loops and branches are traced in evaluated mode. Forward mode evaluates
-calls too, as its traversal may not cross from a symbolic call's recording
-into the variables it read; reverse mode keeps them symbolic, as its
-evaluated form counts the derivative of a gather at one index (a texture's
-transform) once per lane.
+Dr.Jit 1.5 sets the graph replay's modes. Reverse-mode AD goes through
+symbolic loops only by replaying stored iterations, which on the LLVM
+backend mis-compiles a stored mask and fails on a state variable of width
+one and on nested loops: loops and branches are traced in evaluated mode.
+Forward mode evaluates calls too, as its traversal may not cross from a
+symbolic call's recording into the variables it read; reverse mode keeps
+them symbolic, as its evaluated form counts the derivative of a gather at
+one index (a texture's transform) once per lane. The tree replay never
+differentiates across a loop's iterations, and keeps its loops symbolic.
 
 What is not differentiated: changes of visibility. A silhouette, the edge of
 a shadow, the edge of total internal reflection or of a texture's pattern
@@ -47,11 +60,12 @@ in Mitsuba's ``prb`` without them). The parameters that move geometry (a
 shape's vertices or placement, the sensor) are refused with one sentence.
 
 Determinism: Dr.Jit traverses a graph in the order in which it was built,
-and the tiles are summed in order. What remains is the scatter-adds of the
-backward pass (every lane that reads a texel or a constant adds to its
-gradient): with several threads they land in a different order every run,
-so the backward pass of a tile runs on one thread, where they land in lane
-order. The same scene and adjoint give the same gradient bit for bit.
+and the tiles are summed in order. What remains is the scatter-adds into
+the parameters' gradients (every lane that reads a texel or a constant adds
+to its gradient): with several threads they land in a different order every
+run, so the kernels that scatter (the tree replay's backward, the graph
+replay's backward pass) run on one thread, where they land in lane order.
+The same scene and adjoint give the same gradient bit for bit.
 """
 
 from __future__ import annotations

@@ -52,12 +52,10 @@ from ..shading import MAX_TREE_RAYS
 from .depth_first import DepthFirstTracer, LaneStack, _select_all
 from .frozen import FrozenKernel
 
-#: A ray waiting on the stack: origin, direction, throughput, key,
-#: generation, and which of its parent's children it is (its slot).
-RAY_TYPES = (mi.Point3f, mi.Vector3f, mi.Color3f, mi.UInt32, mi.UInt32, mi.UInt32)
-#: A frame holds its node's ray, the count of children still to finish,
-#: the node's own radiance, then the radiance each child sent back.
-PENDING = len(RAY_TYPES)
+#: A frame holds its node's ray (see ``_ray_types``), the count of children
+#: still to finish, the node's own radiance, then the radiance each child
+#: sent back.
+PENDING = 6
 OWN = PENDING + 1
 RETURNED = OWN + 1
 #: How each node's derivative is taken.
@@ -93,7 +91,8 @@ class TreeWalk:
         self.shader = tracer.shader
         self.intersect = tracer.intersect
         self.ray_capacity = tracer.capacity
-        self.frame_types = RAY_TYPES + (mi.UInt32, mi.Color3f) + (mi.Color3f,) * self.shader.fan_out
+        self.frame_types = (_ray_types() + (mi.UInt32, mi.Color3f)
+                            + (mi.Color3f,) * self.shader.fan_out)
         # Open frames besides the one in registers.
         self.frame_capacity = max(self.shader.spawning_generations() - 1, 1)
         refusal = (self._refuse, "the gradient is taken by the slower unfrozen replay, as "
@@ -134,7 +133,7 @@ class TreeWalk:
         """Walk each ray's tree; the radiance, the tangent where ``adjoint``
         is ``None`` (forward mode; else each node's derivative is sent back
         weighed by ``adjoint``), and the rays traced and traced again."""
-        rays = LaneStack.allocate(RAY_TYPES, self.ray_capacity)
+        rays = LaneStack.allocate(_ray_types(), self.ray_capacity)
         frames = LaneStack.allocate(self.frame_types, self.frame_capacity)
         zero = mi.UInt32(0)
         ray = (o, d, throughput, key, zero, zero)
@@ -244,6 +243,12 @@ class TreeWalk:
                                               generation, mi.UInt32(slot)), following)
             waiting |= spawned
         return size, following
+
+
+def _ray_types() -> tuple:
+    """A ray waiting on the stack: origin, direction, throughput, key,
+    generation, and which of its parent's children it is (its slot)."""
+    return mi.Point3f, mi.Vector3f, mi.Color3f, mi.UInt32, mi.UInt32, mi.UInt32
 
 
 def _where(part, mask: mi.Bool):
