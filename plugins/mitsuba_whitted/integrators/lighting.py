@@ -54,14 +54,14 @@ class ShadowTester(ReadsScene):
     :mod:`.indirect`). An analytic shape blocks only where its exact
     surface is, in every mode."""
 
-    def __init__(self, scene_ref: SceneRef, needs: SceneNeeds, shadows: str, intersect,
-                 by_parts: bool = False):
+    def __init__(self, scene_ref: SceneRef, needs: SceneNeeds, shadows: str, intersect):
         self.scene_ref = scene_ref
         #: Whether the march through pass-through surfaces carries its
-        #: derivative in sums (:meth:`_march_by_parts`): for a kernel that
-        #: differentiates inside a symbolic loop, where Dr.Jit 1.5 cannot
-        #: differentiate a product through the march's own loop.
-        self.by_parts = by_parts
+        #: derivative in sums (:meth:`_march_by_parts`): set for the kernels
+        #: that differentiate inside a symbolic loop (the gradients' tree
+        #: replay), where Dr.Jit 1.5 cannot differentiate a product through
+        #: the march's own loop.
+        self.by_parts = False
         self.needs = needs
         self.tinted = shadows == "tinted"
         self.blocking = shadows == "blocking"

@@ -23,6 +23,7 @@ from . import antialias, gradients, render_plan
 from .camera_shader import CameraShader, has_aperture, sensor_of, settle_sampler
 from .film import (adjoint_pixels, developed, developed_format, film_channels, film_entries,
                    image_block)
+from .kept_launches import KeepingShader, KeptLaunches, LaunchesDiffer, fingerprint
 from .lighting import LightingSettings
 from .render_plan import Demand, RenderPlan, plan_render
 from .render_progress import RenderProgress
@@ -32,7 +33,6 @@ from .scene_ref import identity, plain_values
 from .settings import (AA_MODES, PLUGIN_NAME, SETTINGS, SHADOW_MODES, UNBOUNDED_DEPTH, Exposed,
                        read_settings, require_supported_variant, seed_value, validate)
 from .shading import MAX_TREE_RAYS, TreeSettings
-from .kept_launches import KeepingShader, KeptLaunches, LaunchesDiffer, fingerprint
 from .tracers import RayBatch, build_tracer
 from .tracers.tree_replay import ReplayRefused
 
@@ -228,8 +228,9 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         (:func:`.tracers.build_tracer`; ``wavefront`` asks for the wavefront
         tracer, e.g. to capture each generation's rays, ``differentiable``
         for one whose traces Dr.Jit can differentiate, ambient term
-        included: ``"graph"`` or ``"tree"``). ``needs`` replaces ``analyse(scene)``, e.g. to trace with
-        another absolute offset length (its ``scale``)."""
+        included: ``"graph"`` or ``"tree"``). ``needs`` replaces
+        ``analyse(scene)``, e.g. to trace with another absolute offset length
+        (its ``scale``)."""
         check_placements(scene)
         depth = UNBOUNDED_DEPTH if self.max_depth == -1 else self.max_depth
         ambient = self._exposed.arrays["ambient"] if differentiable else self.ambient
