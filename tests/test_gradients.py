@@ -269,6 +269,20 @@ def test_every_antialiasing_and_shadow_mode(aa, shadows):
     check_against_differences(described, "lens.bsdf.specular_transmittance.value", 1, 1e-3)
 
 
+@pytest.mark.parametrize("aa", ["grid", "adaptive"])
+def test_a_camera_with_an_aperture(aa):
+    """A thin lens whose samples spread over its aperture (depth of field):
+    the camera samples keep their lens points through the derivative, in
+    both modes."""
+    described = gallery(size=12, aa=aa)
+    described["integrator"].update(aa_samples=2, aa_threshold=0.05, aa_max_depth=2)
+    described["sensor"].update(type="thinlens", aperture_radius=0.15, focus_distance=4.0)
+    key = "lens.bsdf.specular_transmittance.value"
+    check_against_differences(described, key, 1, 1e-3)
+    (gradient,) = backward_gradient(described, [key])
+    assert forward_derivative(described, key, 1) == pytest.approx(gradient[1], rel=1e-5)
+
+
 def test_both_tracers():
     """An unbounded depth traces with the wavefront tracer, a small one
     with the depth-first one; the gradient is the image's in both."""

@@ -308,7 +308,7 @@ class Replay:
         """The camera rays of the samples ``part``, without derivative."""
         with dr.suspend_grad():
             ray, weight = camera_rays(self.sensor, dr.gather(mi.Point2f, positions, part),
-                                      None if lens is None else dr.gather(mi.Point2f, lens, part))
+                                      None if lens is None else dr.gather(type(lens), lens, part))
             return RayBatch(ray.o, ray.d, mi.Color3f(weight), dr.gather(mi.UInt32, keys, part))
 
     def _parts(self, count: int):
