@@ -91,7 +91,7 @@ class LaneStack:
         values, the new size and ``active``. Skipped by a packet none of
         whose lanes pops."""
         if active:
-            values = _select_all(active, self.read(size - 1), values)
+            values = select_all(active, self.read(size - 1), values)
         return values, dr.select(active, size - 1, size), active
 
     def read(self, index: mi.UInt32) -> list:
@@ -105,7 +105,7 @@ class LaneStack:
         return values
 
 
-def _select_all(mask: mi.Bool, chosen, others) -> tuple:
+def select_all(mask: mi.Bool, chosen, others) -> tuple:
     """Per lane, ``chosen`` where ``mask`` else ``others`` (entry by entry)."""
     return tuple(dr.select(mask, a, b) for a, b in zip(chosen, others))
 
@@ -271,7 +271,7 @@ class DepthFirstTracer(Tracer):
             valid = child.code != 0
             # An earlier child is superseded by this one: it waits.
             size = stack.push(size, ray, live & valid)
-            ray = _select_all(valid, (child.o, child.d, child.throughput, child.key,
+            ray = select_all(valid, (child.o, child.d, child.throughput, child.key,
                                       generation + 1), ray)
             live |= valid
             for kind, code in KIND_CODES.items():

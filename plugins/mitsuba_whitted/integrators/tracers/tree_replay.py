@@ -19,14 +19,16 @@ or ``dr.forward_to`` (forward mode) inside the loop. No derivative crosses
 an iteration, so the loop stays symbolic and the whole replay is one frozen
 kernel per tile.
 
-A node's term needs its children's radiances, known only once their
-subtrees are walked: a node with children opens a *frame* (its ray,
-throughput and the radiance each child sends back), and when its last
-child is done the loop traces that node's ray again, shades it with the
-derivative and sends its own radiance up to its parent's frame. A node
-without children is done as soon as it is shaded. The rays a tree visits
-and their order are the depth-first tracer's, its cut at ``MAX_TREE_RAYS``
-included; inner nodes are traced twice.
+A node's own radiance is differentiated when the walk shades it. Its
+children's part needs their radiances, known only once their subtrees are
+walked: a node with children opens a *frame* (its ray, throughput, own
+radiance and the radiance each child sends back), and when its last child
+is done the loop traces that node's ray again, shades it for its
+children's weights alone (no lights, no emission), differentiates those,
+and sends its radiance up to its parent's frame. A node without children
+is done as soon as it is shaded. The rays a tree visits and their order
+are the depth-first tracer's, its cut at ``MAX_TREE_RAYS`` included; a
+node with children is traced twice.
 
 The open frames wait on a second :class:`LaneStack`, the innermost in
 registers. A frame is opened by a node that spawns children, so at most
@@ -49,7 +51,7 @@ import mitsuba as mi
 from ...errors import Error
 from ..settings import PLUGIN_NAME
 from ..shading import MAX_TREE_RAYS
-from .depth_first import DepthFirstTracer, LaneStack, _select_all
+from .depth_first import DepthFirstTracer, LaneStack, select_all
 from .frozen import FrozenKernel
 
 #: A frame holds its node's ray (see ``_ray_types``), the count of children
@@ -157,7 +159,7 @@ class TreeWalk:
         sizes of the two stacks, open frames, rays visited and visited
         again (completed frames)."""
         size, frames_size, depth, visited, revisited = walk
-        node = _select_all(completing, frame[:PENDING], ray)
+        node = select_all(completing, frame[:PENDING], ray)
         own, sent, children, tangent = self._node_term(node, frame, completing, tangent,
                                                        adjoint)
         has_children = mi.Bool(False)
@@ -176,7 +178,7 @@ class TreeWalk:
         for child in children:
             pending += mi.UInt32(opens & (child.code != 0))
         opened = node + (pending, own) + (mi.Color3f(0),) * len(children)
-        frame = _select_all(opens, opened, frame)
+        frame = select_all(opens, opened, frame)
         depth = dr.select(opens, depth + 1, depth)
         size, ray = self._queue_children(rays, size, ray, node, children, opens)
 
@@ -239,7 +241,7 @@ class TreeWalk:
         for slot, child in enumerate(children):
             spawned = opens & (child.code != 0)
             size = rays.push(size, following, waiting & spawned)
-            following = _select_all(spawned, (child.o, child.d, child.throughput, child.key,
+            following = select_all(spawned, (child.o, child.d, child.throughput, child.key,
                                               generation, mi.UInt32(slot)), following)
             waiting |= spawned
         return size, following
