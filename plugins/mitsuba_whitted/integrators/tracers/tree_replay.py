@@ -75,8 +75,9 @@ class Walked:
 
 
 class ReplayRefused(Error):
-    """Dr.Jit could not record a kernel of the tree replay: the caller
-    takes the derivative another way. Raised before any kernel ran."""
+    """Dr.Jit could not record (or replay) a kernel of the tree replay: the
+    caller takes the derivative another way, dropping what the replay's
+    kernels may already have added to the stand-ins' gradients."""
 
     def __init__(self):
         super().__init__("Dr.Jit could not record the gradient's tree replay.", PLUGIN_NAME)
