@@ -94,6 +94,20 @@ class LaneStack:
             values = select_all(active, self.read(size - 1), values)
         return values, dr.select(active, size - 1, size), active
 
+    def queue(self, size: mi.UInt32, current: tuple, candidates: list):
+        """Of ``candidates`` (pairs of a mask and an entry, in order), the
+        last one each lane has goes to registers and the earlier ones wait
+        on the stack (the order of a plain depth-first walk, without
+        storing the entry taken next): the new size, the entry in registers
+        (``current`` where a lane has none) and whether a lane had one."""
+        queued = mi.Bool(False)
+        for valid, entry in candidates:
+            # An earlier candidate is superseded by this one: it waits.
+            size = self.push(size, current, queued & valid)
+            current = select_all(valid, entry, current)
+            queued |= valid
+        return size, current, queued
+
     def read(self, index: mi.UInt32) -> list:
         """The entries at ``index`` (per lane), read slot by slot."""
         values = []
@@ -266,14 +280,10 @@ class DepthFirstTracer(Tracer):
         if shaded.indirect_rays is not None:
             counts["indirect"] += shaded.indirect_rays.traced
             counts["indirect_shadow"] += shaded.indirect_rays.shadow
-        live = mi.Bool(False)
+        size, ray, live = stack.queue(
+            size, ray, [(child.code != 0, (child.o, child.d, child.throughput, child.key,
+                                           generation + 1)) for child in shaded.children])
         for child in shaded.children:
-            valid = child.code != 0
-            # An earlier child is superseded by this one: it waits.
-            size = stack.push(size, ray, live & valid)
-            ray = select_all(valid, (child.o, child.d, child.throughput, child.key,
-                                      generation + 1), ray)
-            live |= valid
             for kind, code in KIND_CODES.items():
                 counts[kind] += mi.UInt32(child.code == code)
         ray, size, popped = stack.pop(size, ray, ~live & (size > 0))

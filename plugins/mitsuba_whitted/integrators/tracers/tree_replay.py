@@ -163,10 +163,10 @@ class TreeWalk:
         node = select_all(completing, frame[:PENDING], ray)
         own, sent, children, tangent = self._node_term(node, frame, completing, tangent,
                                                        adjoint)
-        has_children = mi.Bool(False)
+        spawned = mi.UInt32(0)
         for child in children:
-            has_children |= child.code != 0
-        opens = ~completing & has_children
+            spawned += mi.UInt32(child.code != 0)
+        opens = ~completing & (spawned > 0)
         done = ~opens
         visited = dr.select(completing, visited, visited + 1)
         revisited = dr.select(completing, revisited + 1, revisited)
@@ -175,13 +175,14 @@ class TreeWalk:
         # A node with children opens a frame; its last child goes next, the
         # others wait on the stack.
         frames_size = frames.push(frames_size, frame, opens & (depth > 0))
-        pending = mi.UInt32(0)
-        for child in children:
-            pending += mi.UInt32(opens & (child.code != 0))
-        opened = node + (pending, own) + (mi.Color3f(0),) * len(children)
+        opened = node + (spawned, own) + (mi.Color3f(0),) * len(children)
         frame = select_all(opens, opened, frame)
         depth = dr.select(opens, depth + 1, depth)
-        size, ray = self._queue_children(rays, size, ray, node, children, opens)
+        generation = node[4] + 1
+        size, ray, _ = rays.queue(size, ray, [
+            (opens & (child.code != 0),
+             (child.o, child.d, child.throughput, child.key, generation, mi.UInt32(slot)))
+            for slot, child in enumerate(children)])
 
         # A node done sends its radiance to its parent's frame: the one in
         # registers, or for a completed frame the one under it.
@@ -232,20 +233,6 @@ class TreeWalk:
         sent = dr.select(completing, frame[OWN] + dr.detach(returned), own)
         children = [_detached(child) for child in shaded.children]
         return own, sent, children, tangent
-
-    def _queue_children(self, rays, size, ray, node, children, opens):
-        """Where ``opens``: the last spawned child in registers, the earlier
-        ones pushed (the order of :mod:`.depth_first`)."""
-        generation = node[4] + 1
-        waiting = mi.Bool(False)
-        following = ray
-        for slot, child in enumerate(children):
-            spawned = opens & (child.code != 0)
-            size = rays.push(size, following, waiting & spawned)
-            following = select_all(spawned, (child.o, child.d, child.throughput, child.key,
-                                              generation, mi.UInt32(slot)), following)
-            waiting |= spawned
-        return size, following
 
 
 def _ray_types() -> tuple:
