@@ -315,7 +315,8 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     def _keeping(self, scene: mi.Scene, sensor: mi.Sensor, seed: int):
         """The :class:`.kept_launches.KeptLaunches` a render fills for its
         derivative, in a variant with derivatives and without indirect
-        light (which is not differentiated); else ``None``."""
+        light (which is not differentiated); else ``None``. The last
+        render's go first, before this one allocates."""
         self._state.kept = None
         if not dr.is_diff_v(mi.Float) or self.indirect_samples:
             return None
