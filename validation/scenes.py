@@ -10,6 +10,7 @@ defaults, or every cached reference built from it would be rendered anew.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import mitsuba as mi
@@ -117,3 +118,74 @@ def glass_scene(size=48):
             "emitter": {"type": "area", "radiance": rgb(10, 10, 10)}}
     return scene(floor(), mirror_ball, glass, lamp, point_light((1, 3, 3)),
                  sensor=camera(origin=(0, 1, 5), size=size))
+
+
+# --- caustics and pass-through shadows -----------------------------------------
+#
+# Scenes where Mitsuba's ``path`` is wrong or slow: a delta light seen by a
+# smooth surface through delta surfaces (a caustic, which ``path`` never
+# samples from a point light), and a shadow cast by a surface that bends no
+# light. ``validation.oracles.light_tracer`` gives their reference.
+
+#: Whitted settings of the caustic scenes: deep enough for the ball's
+#: internal reflections.
+CAUSTIC_DEPTH = 8
+#: The caustic scenes' ball (resting on the floor at y = 0) and lamp: the
+#: lamp is low enough to the side that the focused light lands on the floor
+#: beside the ball, in view.
+CAUSTIC_BALL_CENTRE, CAUSTIC_BALL_RADIUS = (0.0, 0.5, 0.0), 0.5
+CAUSTIC_LAMP, CAUSTIC_INTENSITY = (-2.5, 2.2, 0.0), 20.0
+
+
+def caustic_ball_scene(ball_bsdf: dict, lamp: dict | None = None, size=128) -> dict:
+    """A ball of ``ball_bsdf`` on a diffuse floor (y = 0), lit by ``lamp``
+    (default: the caustic point light), seen from the front and above with
+    a box-filtered film of ``size`` pixels (default 128)."""
+    sensor = camera(origin=(0.6, 2.4, 3.6), target=(0.6, 0.2, 0.0), fov=40,
+                    size=size)
+    return scene(floor(y=0.0, size=6.0), sphere(CAUSTIC_BALL_CENTRE, CAUSTIC_BALL_RADIUS,
+                                               ball_bsdf),
+                 lamp or point_light(CAUSTIC_LAMP, CAUSTIC_INTENSITY), sensor=sensor,
+                 whitted=integrator(max_depth=CAUSTIC_DEPTH))
+
+
+def glass_ball_caustic(size=128) -> dict:
+    """A glass ball (index 1.5) focusing a point light onto the floor."""
+    return caustic_ball_scene({"type": "dielectric", "int_ior": 1.5}, size=size)
+
+
+def mirror_ball_caustic(size=128) -> dict:
+    """A perfect mirror ball reflecting a point light onto the floor."""
+    return caustic_ball_scene({"type": "conductor", "material": "none"}, size=size)
+
+
+def small_sphere_lamp(position, intensity: float, radius: float) -> dict:
+    """A sphere area light with the radiant intensity of a point light of
+    ``intensity``: seen from any direction it shows pi r^2 of radiance
+    ``intensity / (pi r^2)``. As ``radius`` shrinks its light tends to the
+    point light's, and ``path`` samples the caustic (by BSDF sampling
+    through the ball, hitting the lamp) however slowly."""
+    radiance = intensity / (math.pi * radius ** 2)
+    return {"type": "sphere", "center": list(position), "radius": radius,
+            "emitter": {"type": "area", "radiance": rgb(radiance, radiance, radiance)}}
+
+
+def glass_ball_small_light(radius=0.05, size=128) -> dict:
+    """:func:`glass_ball_caustic` with its point light replaced by a small
+    sphere of the same power (the small-light limit, where ``path``
+    converges too)."""
+    return caustic_ball_scene({"type": "dielectric", "int_ior": 1.5},
+                              small_sphere_lamp(CAUSTIC_LAMP, CAUSTIC_INTENSITY, radius),
+                              size=size)
+
+
+def index_matched_shadow(size=128) -> dict:
+    """A dielectric ball whose index equals its surroundings' (eta 1: it
+    bends and reflects nothing) over a diffuse floor under a point light.
+    The truth is no shadow; ``path``'s shadow rays stop at the ball."""
+    ball = sphere((0.0, 0.8, 0.0), 0.5, {"type": "dielectric", "int_ior": 1.0,
+                                          "ext_ior": 1.0})
+    sensor = camera(origin=(0.0, 2.4, 3.6), target=(0.0, 0.3, 0.0), fov=40,
+                    size=size)
+    return scene(floor(y=0.0, size=6.0), ball, point_light((0.6, 3.5, 0.4), CAUSTIC_INTENSITY),
+                 sensor=sensor, whitted=integrator(max_depth=CAUSTIC_DEPTH))
