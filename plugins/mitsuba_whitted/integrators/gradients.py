@@ -103,9 +103,9 @@ _NOT_GEOMETRY = ("which whitted does not differentiate (silhouettes would move);
                  "differentiate materials, textures, lights or the ambient term")
 
 
-def require_differentiable(indirect_samples: int) -> None:
+def require_differentiable(indirect_samples: int, photons: int = 0) -> None:
     """One sentence where the active variant has no automatic
-    differentiation, or the integrator gathers indirect light."""
+    differentiation, or the integrator gathers indirect light or photons."""
     if not dr.is_diff_v(mi.Float):
         raise VariantError(
             "gradients need a variant with automatic differentiation such as 'llvm_ad_rgb' "
@@ -113,6 +113,9 @@ def require_differentiable(indirect_samples: int) -> None:
     check(indirect_samples == 0, PLUGIN_NAME, "indirect_samples",
           f"is {indirect_samples}, and the indirect light is not differentiated: "
           "set it to 0 for gradients")
+    check(photons == 0, PLUGIN_NAME, "photons",
+          f"is {photons}, and the photons' light is not differentiated: set it to 0 for "
+          "gradients")
 
 
 def tile_demand(demand: Demand, replay: "Replay") -> Demand:

@@ -21,6 +21,11 @@ AA_DEPTH_LIMIT = 16
 #: Most indirect paths per hit: the Sobol points' 32-bit indices, and far
 #: beyond what converges any image.
 MAX_INDIRECT_SAMPLES = 1 << 20
+#: Most photons of one pass (their Sobol indices are 32-bit; memory is
+#: checked before a pass is traced).
+MAX_PHOTONS = 1 << 30
+#: Most photon passes of one render.
+MAX_PHOTON_PASSES = 1 << 20
 
 
 def _given(props: mi.Properties, name: str, default):
@@ -81,6 +86,9 @@ SETTINGS = {
     "aa_max_depth": _whole(3),
     "aa_budget": _real(64.0),
     "wavefront_size": _whole(1 << 18),
+    "photons": _whole(0),
+    "photon_passes": _whole(16),
+    "photon_radius": _real(0.0),
 }
 
 
@@ -116,6 +124,12 @@ def validate(v: dict) -> None:
           f"must be >= 4 samples per pixel (got {v['aa_budget']:g})")
     check(v["wavefront_size"] >= 1024, PLUGIN_NAME, "wavefront_size",
           f"must be >= 1024 (got {v['wavefront_size']})")
+    check(0 <= v["photons"] <= MAX_PHOTONS, PLUGIN_NAME, "photons",
+          f"must be between 0 and {MAX_PHOTONS} (got {v['photons']})")
+    check(1 <= v["photon_passes"] <= MAX_PHOTON_PASSES, PLUGIN_NAME, "photon_passes",
+          f"must be between 1 and {MAX_PHOTON_PASSES} (got {v['photon_passes']})")
+    check(v["photon_radius"] >= 0, PLUGIN_NAME, "photon_radius",
+          f"must be >= 0, 0 for the pixel footprint (got {v['photon_radius']:g})")
     check(all(c >= 0 for c in v["ambient"]), PLUGIN_NAME, "ambient",
           f"must not be negative (got {list(v['ambient'])})")
 

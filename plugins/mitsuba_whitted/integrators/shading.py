@@ -43,9 +43,12 @@ class HitWork:
     spawn: object = False
     #: Paths of indirect light from the hit (:mod:`.indirect`).
     gather: object = False
+    #: The photons' light at the hit (:mod:`.photons`).
+    photons: object = False
 
     def any(self) -> bool:
-        return any(part is not False for part in (self.emit, self.light, self.spawn))
+        return any(part is not False
+                   for part in (self.emit, self.light, self.spawn, self.photons))
 
 
 @dataclass
@@ -78,15 +81,20 @@ class Child:
 
 
 class HitShader(ReadsScene):
-    """Local radiance and delta children of hits."""
+    """Local radiance and delta children of hits. Given ``photons`` (a
+    :class:`.photons.grid.PhotonGrid` holder with ``estimate``), the
+    shader of a photon pass: its hits add the photons' light alone, with
+    no emission, lights or indirect paths, which the render adds."""
 
     def __init__(self, scene_ref: SceneRef, needs: SceneNeeds, settings: TreeSettings,
-                 lighting: DirectLighting, indirect: IndirectLight | None = None):
+                 lighting: DirectLighting, indirect: IndirectLight | None = None,
+                 photons=None):
         self.scene_ref = scene_ref
         self.needs = needs
         self.settings = settings
         self.lighting = lighting
         self.indirect = indirect
+        self.photons = photons
         self.components = [("delta", c) for c in needs.delta_components]
         if needs.null_surfaces:
             self.components.append(("null", None))
@@ -111,6 +119,8 @@ class HitShader(ReadsScene):
     def work(self, generation) -> HitWork:
         """What a hit of ``generation`` computes (an int, or per lane)."""
         depth = self.settings.max_depth
+        if self.photons is not None:
+            return self._photon_work(generation)
         direct = generation + 2 <= depth
         emit = self.needs.hittable_emitters and (generation + 1 <= depth)
         if self.settings.hide_emitters and emit is not False:
@@ -126,6 +136,15 @@ class HitShader(ReadsScene):
             gather=(self.indirect is not None and light is not False
                     and light & (generation + 3 <= depth)))
 
+    def _photon_work(self, generation) -> HitWork:
+        """A photon pass's hit: a stored photon has at least two segments
+        (from the light, bent on the way), so the hit gathers where its
+        camera path leaves room for them, and spawns where its children's
+        would."""
+        depth = self.settings.max_depth
+        return HitWork(photons=self.needs.smooth_surfaces and generation + 3 <= depth,
+                       spawn=self.fan_out > 0 and generation + 4 <= depth)
+
     def shade(self, si, ray, throughput, key, work: HitWork, generation=0,
               paths=None) -> "Shaded":
         """What the hits of ``ray`` add (:class:`Shaded`). ``generation``:
@@ -134,6 +153,8 @@ class HitShader(ReadsScene):
         ``indirect_samples``)."""
         shaded = Shaded()
         local = None
+        if work.photons is not False:
+            local = self._photon_light(si, ray, work.photons, generation)
         if work.emit is not False:
             # Misses see the environment emitter, if any.
             local = si.emitter(self.scene).eval(si, mi.Bool(work.emit))
@@ -151,6 +172,14 @@ class HitShader(ReadsScene):
             shaded.own = local
             shaded.local = local * throughput
         return shaded
+
+    def _photon_light(self, si, ray, active, generation) -> mi.Color3f:
+        """The photons' light leaving a smooth hit along ``-ray``; the
+        camera path to it has ``generation + 1`` segments."""
+        bsdf = si.bsdf(ray)
+        smooth = si.is_valid() & active & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+        segments = mi.UInt32(self.settings.max_depth - 1 - generation)
+        return self.photons.estimate(si, bsdf, smooth, segments)
 
     def _scatter(self, si, ray, throughput, key, work: HitWork):
         """What the hit's BSDF adds: light reflected from the lights, the

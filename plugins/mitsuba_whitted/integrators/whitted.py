@@ -25,6 +25,7 @@ from .film import (adjoint_pixels, developed, developed_format, film_channels, f
                    image_block)
 from .kept_launches import KeepingShader, KeptLaunches, LaunchesDiffer, fingerprint
 from .lighting import LightingSettings
+from .photons.progressive import PhotonLookup, ProgressivePhotons, kinds_for
 from .render_plan import Demand, RenderPlan, plan_render
 from .render_progress import RenderProgress
 from .scene_checks import check_emitters, check_placements
@@ -119,6 +120,27 @@ class WhittedIntegrator(mi.SamplingIntegrator):
      * - wavefront_size
        - |int|
        - Most rays of one launch; bounds the memory of a render. (Default: 262144)
+       - |exposed|
+     * - photons
+       - |int|
+       - Photons per pass of progressive photon mapping: 0 is none. Above
+         0, the photons carry the light the rest of the render leaves out
+         (with ``indirect_samples`` 0, caustics and indirect light; above
+         0, only the light of point, spot and directional lights through
+         mirrors and glass onto smooth surfaces, which no path finds),
+         gathered at the ray tree's smooth hits. Not differentiated.
+         (Default: 0)
+       - |exposed|
+     * - photon_passes
+       - |int|
+       - Passes of photons, each with a smaller gather radius: the photons'
+         light converges as they grow. (Default: 16)
+       - |exposed|
+     * - photon_radius
+       - |float|
+       - Gather radius of the first pass, in scene units; 0: the width of a
+         pixel at the median distance of the camera's first hits.
+         (Default: 0)
        - |exposed|
 
     Whitted (1980) ray tracing for any Mitsuba scene: at each hit, the
@@ -223,12 +245,14 @@ class WhittedIntegrator(mi.SamplingIntegrator):
     # ------------------------------------------------------------------ setup
 
     def make_tracer(self, scene: mi.Scene, seed: int = 0, wavefront: bool = False,
-                    needs: SceneNeeds = None, differentiable: str = None):
+                    needs: SceneNeeds = None, differentiable: str = None, photons=None):
         """A tracer of ``scene`` with this integrator's settings
         (:func:`.tracers.build_tracer`; ``wavefront`` asks for the wavefront
         tracer, e.g. to capture each generation's rays, ``differentiable``
         for one whose traces Dr.Jit can differentiate, ambient term
-        included: ``"graph"`` or ``"tree"``). ``needs`` replaces
+        included: ``"graph"`` or ``"tree"``; ``photons``, a
+        :class:`.photons.progressive.PhotonLookup`, for the tracer of photon
+        passes, whose hits add the photons' light alone). ``needs`` replaces
         ``analyse(scene)``, e.g. to trace with another absolute offset length
         (its ``scale``)."""
         check_placements(scene)
@@ -238,7 +262,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
                             LightingSettings(ambient, self.emitter_samples, seed,
                                              self.indirect_samples),
                             TreeSettings(depth, self.min_throughput, self.hide_emitters),
-                            self.wavefront_size, wavefront, differentiable)
+                            self.wavefront_size, wavefront, differentiable, photons)
 
     def _tracer_for(self, scene: mi.Scene, seed: int):
         """The last render's tracer if nothing it was built from changed
@@ -258,6 +282,34 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         tracer = self.make_tracer(scene, seed, wavefront=self.capture_rays, needs=needs)
         self._state.built_from, self._state.tracer = built_from, tracer
         return tracer
+
+    def _photon_tracer_for(self, scene: mi.Scene, seed: int):
+        """The tracer of the photon passes, kept as ``_tracer_for`` keeps
+        the render's."""
+        needs = analyse(scene)
+        built_from = self._built_from(scene, needs, seed, "photons")
+        state = self._state
+        if state.photon_built_from == built_from:
+            state.photon_tracer.reload()
+            return state.photon_tracer
+        tracer = self.make_tracer(scene, seed, needs=needs, photons=PhotonLookup())
+        state.photon_built_from, state.photon_tracer = built_from, tracer
+        return tracer
+
+    def _photon_light(self, scene: mi.Scene, sensor: mi.Sensor, seed: int, on_pass=None):
+        """The photons' light of every pixel of the crop window
+        (:mod:`.photons.progressive`), and what the passes did."""
+        tracer = self._photon_tracer_for(scene, seed)
+        kinds, delta_only = kinds_for(self.indirect_samples)
+        depth = UNBOUNDED_DEPTH if self.max_depth == -1 else self.max_depth
+        passes = ProgressivePhotons(self.photons, self.photon_passes, self.photon_radius,
+                                    kinds, delta_only, depth)
+        shader = CameraShader(tracer, sensor)
+        jitter = self.aa != "none"
+        with tracer.scene_ref.holding(scene):
+            light = passes.render(scene, sensor, seed, tracer, shader.trace, jitter,
+                                  jitter and has_aperture(sensor), on_pass)
+        return light, passes.stats
 
     def _replay_for(self, scene: mi.Scene, seed: int, sensor: mi.Sensor):
         """The :class:`.gradients.Replay` of the last derivative, of
@@ -318,7 +370,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         light (which is not differentiated); else ``None``. The last
         render's go first, before this one allocates."""
         self._state.kept = None
-        if not dr.is_diff_v(mi.Float) or self.indirect_samples:
+        if not dr.is_diff_v(mi.Float) or self.indirect_samples or self.photons:
             return None
         return KeptLaunches(fingerprint(scene, sensor, seed), self.limits.memory())
 
@@ -407,7 +459,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         launches (``None`` unless they are this image's), once the variant,
         the settings and ``params`` are found differentiable and the tile
         traced again is found to fit beside the render."""
-        gradients.require_differentiable(self.indirect_samples)
+        gradients.require_differentiable(self.indirect_samples, self.photons)
         keys = gradients.differentiated(params)
         sensor = sensor_of(scene, sensor)
         self._note_sample_count(spp)
@@ -465,6 +517,9 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         tracer = self._tracer_for(scene, seed)
         plan = plan_render(self._demand(sensor.film(), tracer, film_entries, held_bytes),
                            self.limits)
+        photon_light, photon_stats = None, {}
+        if self.photons and not derivative:
+            photon_light, photon_stats = self._photon_light(scene, sensor, seed)
         if prepare is not None:
             prepare()
         tracer.captured = [] if self.capture_rays else None
@@ -478,12 +533,14 @@ class WhittedIntegrator(mi.SamplingIntegrator):
             for band in bands:
                 progress.start_band(band)
                 radiance, alpha, count = sampler.render(band, shade, total.refined)
+                if photon_light is not None:
+                    radiance = radiance + band_of(photon_light, band)
                 _require_finite(radiance, alpha)
                 take(band, radiance, alpha)
                 total.add(count)
                 progress.end_band()
         if not derivative:
-            self._record(tracer, total, plan)
+            self._record(tracer, total, plan, photon_stats)
 
     def _demand(self, film: mi.Film, tracer, film_entries: int, held_bytes: int) -> Demand:
         """What a render of ``film`` asks of memory (:mod:`.render_plan`)."""
@@ -495,9 +552,11 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         return Demand(width, height, kept, launch, film_entries, launch_parameter=parameter,
                       held_bytes=held_bytes)
 
-    def _record(self, tracer, count: antialias.SampleCount, plan: RenderPlan) -> None:
+    def _record(self, tracer, count: antialias.SampleCount, plan: RenderPlan,
+                photon_stats: dict) -> None:
         """Keep what the last render did for ``last_stats`` and friends."""
         stats = tracer.statistics()
+        stats.update(photon_stats)
         stats["aa_samples"] = count.samples
         stats["aa_per_level"] = count.per_level
         stats["aa_levels"] = count.levels
@@ -532,11 +591,12 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         doubled = [what for what, present in (
             ("the ambient term", any(c > 0 for c in self.ambient)),
             ("tinted shadows", self.shadows != "physical")) if present]
-        if self.indirect_samples and doubled:
+        gatherers = [name for name in ("indirect_samples", "photons") if getattr(self, name)]
+        if gatherers and doubled:
             self._note_once("indirect model", (
-                f"whitted: with indirect_samples > 0, {' and '.join(doubled)} add light that "
-                "the indirect paths gather as well; set 'ambient' to 0 and 'shadows' to "
-                "'physical' for an image that converges to the path tracer's."))
+                f"whitted: with {' and '.join(gatherers)} > 0, {' and '.join(doubled)} add "
+                "light that the indirect paths or photons gather as well; set 'ambient' to 0 "
+                "and 'shadows' to 'physical' for an image that converges to the true one."))
 
     def _note_long_grid(self) -> None:
         """A grid traces every sample it asks for, past ``aa_budget`` too
@@ -629,11 +689,14 @@ class _RenderState:
     last render left (see the integrator's ``last_*``), and the warnings
     already given."""
 
-    __slots__ = ("built_from", "tracer", "replay_built_from", "replay", "replay_refused", "kept",
-                 "stats", "sample_map", "rays", "noted", "seed")
+    __slots__ = ("built_from", "tracer", "photon_built_from", "photon_tracer",
+                 "replay_built_from", "replay", "replay_refused", "kept", "stats", "sample_map",
+                 "rays", "noted", "seed")
 
     def __init__(self):
         self.built_from = self.tracer = self.sample_map = self.rays = None
+        #: The tracer of the photon passes, and what it was built from.
+        self.photon_built_from = self.photon_tracer = None
         #: The last derivative's replay (``_replay_for``), and what the
         #: tree replay Dr.Jit refused was built from.
         self.replay_built_from = self.replay = self.replay_refused = None
@@ -644,6 +707,13 @@ class _RenderState:
         self.stats = {}
         #: Subjects of the warnings given once (``_note_once``).
         self.noted = set()
+
+
+def band_of(pixels: mi.Color3f, band) -> mi.Color3f:
+    """The values of ``band``'s pixels, of per-pixel values of the whole
+    crop window (row-major)."""
+    index = dr.arange(mi.UInt32, band.pixels) + dr.opaque(mi.UInt32, band.first_pixel)
+    return dr.gather(mi.Color3f, pixels, index)
 
 
 def _require_finite(radiance: mi.Color3f, alpha: mi.Float) -> None:

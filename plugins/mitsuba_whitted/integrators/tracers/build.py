@@ -18,7 +18,8 @@ from .wavefront import WavefrontTracer
 
 def build_tracer(scene: mi.Scene, needs: SceneNeeds, shadows: str,
                  lighting: LightingSettings, tree: TreeSettings, wavefront_size: int,
-                 wavefront: bool = False, differentiable: str = None) -> Tracer:
+                 wavefront: bool = False, differentiable: str = None,
+                 photons=None) -> Tracer:
     """A tracer of ``scene`` built from its ``needs``: the depth-first one
     where its stack is deep enough, else (or when ``wavefront`` asks, e.g.
     to capture each generation's rays) the wavefront one. ``differentiable``
@@ -26,7 +27,9 @@ def build_tracer(scene: mi.Scene, needs: SceneNeeds, shadows: str,
     wavefront one unfrozen (differentiated as a whole); ``"tree"``, one
     whose kernels differentiate a hit at a time (:mod:`.tree_replay`), the
     depth-first one where it serves. ``shadows``: the shadow mode of
-    :class:`ShadowTester`."""
+    :class:`ShadowTester`. ``photons``: the lookup of a photon pass's
+    tracer (:class:`.photons.progressive.PhotonLookup`), whose hits add the
+    photons' light alone."""
     scene_ref = SceneRef(scene)
     refiner = (AnalyticRefiner(scene_ref, needs.analytic_shapes, needs.scale)
                if needs.analytic_shapes else None)
@@ -37,7 +40,7 @@ def build_tracer(scene: mi.Scene, needs: SceneNeeds, shadows: str,
         indirect = IndirectLight(scene_ref, needs, lighting.indirect_samples, lighting.seed,
                                  intersect, ShadowTester(scene_ref, needs, "blocking", intersect))
     shader = HitShader(scene_ref, needs, tree, DirectLighting(needs, lighting, shadow_test),
-                       indirect)
+                       None if photons is not None else indirect, photons)
     if not wavefront and differentiable != "graph" and DepthFirstTracer.supports(shader):
         shadow_test.by_parts = differentiable == "tree"
         return DepthFirstTracer(shader, intersect, refiner, wavefront_size)
