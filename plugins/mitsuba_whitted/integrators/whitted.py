@@ -15,7 +15,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..errors import ParameterError, check_choice
+from ..errors import ParameterError, check, check_choice
 from ..jit import to_int
 from ..parameters import LastValid
 from ..render_lock import one_at_a_time
@@ -25,7 +25,7 @@ from .film import (adjoint_pixels, developed, developed_format, film_channels, f
                    image_block)
 from .kept_launches import KeepingShader, KeptLaunches, LaunchesDiffer, fingerprint
 from .lighting import LightingSettings
-from .photons.progressive import PhotonLookup, ProgressivePhotons, kinds_for
+from .photons.progressive import PATH_COMPLEMENT, PhotonLookup, ProgressivePhotons, kinds_for
 from .render_plan import Demand, RenderPlan, plan_render
 from .render_progress import RenderProgress
 from .scene_checks import check_emitters, check_placements
@@ -296,11 +296,32 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         state.photon_built_from, state.photon_tracer = built_from, tracer
         return tracer
 
-    def _photon_light(self, scene: mi.Scene, sensor: mi.Sensor, seed: int, on_pass=None):
+    @one_at_a_time
+    def photon_light(self, scene: mi.Scene, sensor=0, seed=0, complement: str = "whitted"):
+        """The photons' light alone, per pixel of the sensor's crop window
+        (a ``mi.TensorXf`` of height x width x 3), with this integrator's
+        ``photons``, ``photon_passes`` and ``photon_radius``.
+        ``complement``: ``"whitted"``, the light this integrator's render
+        adds with them; ``"path"``, the light a path tracer misses (point,
+        spot and directional lights through any delta or null surface onto
+        a smooth one), which completes a ``path`` reference."""
+        check_choice(complement, ("whitted", "path"), PLUGIN_NAME, "complement")
+        check(self.photons > 0, PLUGIN_NAME, "photons", "must be > 0 for the photons' light")
+        sensor = sensor_of(scene, sensor)
+        settle_sampler(sensor)
+        check_emitters(scene)
+        light, self._state.stats = self._photon_light(scene, sensor, seed_value(seed),
+                                                      complement=complement)
+        width, height = sensor.film().crop_size()
+        return mi.TensorXf(dr.ravel(light), (height, width, 3))
+
+    def _photon_light(self, scene: mi.Scene, sensor: mi.Sensor, seed: int, on_pass=None,
+                      complement: str = "whitted"):
         """The photons' light of every pixel of the crop window
         (:mod:`.photons.progressive`), and what the passes did."""
         tracer = self._photon_tracer_for(scene, seed)
-        kinds, delta_only = kinds_for(self.indirect_samples)
+        kinds, delta_only = ((PATH_COMPLEMENT, True) if complement == "path"
+                             else kinds_for(self.indirect_samples))
         depth = UNBOUNDED_DEPTH if self.max_depth == -1 else self.max_depth
         passes = ProgressivePhotons(self.photons, self.photon_passes, self.photon_radius,
                                     kinds, delta_only, depth)
