@@ -155,3 +155,28 @@ def test_ptracer_sees_the_mirror_caustic_path_misses(mirror_scene):
     assert np.allclose(path, exact["direct"][..., None], rtol=2e-5, atol=0)
     missing = (total - path)[inside] / total[inside]
     assert missing.min() > 0.2, missing.min()
+
+
+def test_ptracer_casts_no_shadow_under_index_matched_glass():
+    """A dielectric ball of index 1 bends and reflects nothing: ptracer's
+    floor is the floor without the ball, and path's shadow rays stop at the
+    ball, leaving it black."""
+    description = scenes.index_matched_shadow(size=32)
+    scene = mi.load_dict(description)
+    mask = light_tracer.smooth_first_mask(scene)
+    without_ball = {name: value for name, value in description.items() if name != "object_1"}
+    # The floor's direct light from a point light, which path gets exactly
+    # at each point: its only noise is where in the pixel it looks.
+    truth = np.asarray(mi.render(mi.load_dict(without_ball), spp=1024,
+                                 integrator=mi.load_dict({"type": "path", "max_depth": 2})),
+                       dtype=np.float64)[..., :3]
+    path = np.asarray(mi.render(scene, spp=4, integrator=mi.load_dict(
+        {"type": "path", "max_depth": scenes.CAUSTIC_DEPTH})), dtype=np.float64)[..., :3]
+    shadow = mask & (path.mean(axis=2) < 0.05 * truth.mean(axis=2))
+    assert shadow.sum() >= 10
+    light = light_tracer.ptracer_reference(description, spp=8192, passes=PASSES)
+    z = light_tracer.agreement_z(light.image, light.stderr, truth, np.zeros_like(truth), mask)
+    message = chi_square_ok(z, bound=6.0)
+    assert not message, message
+    ratio = light.image[shadow].sum() / truth[shadow].sum()
+    assert abs(ratio - 1) < 0.03, ratio

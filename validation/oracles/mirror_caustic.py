@@ -126,8 +126,10 @@ def exact_image(scene: mi.Scene, reflectance: float = 1.0) -> dict:
     centres (``direct``, ``mirror``, ``total``, as ``aa`` none renders), and
     ``valid``: False where the footprint's edge crosses the pixel (a grid of
     ``EDGE_GRID`` points per side, the pixel's corners among them, is
-    neither all inside nor all outside), where the pixel's mean is not its
-    centre's value."""
+    neither all inside nor all outside): elsewhere the light is smooth across
+    the pixel, so its box-filtered mean differs from the centre's value by
+    the light's curvature over a pixel only; ``footprint``: True where the
+    whole pixel is inside."""
     sensor = scene.sensors()[0]
     film = sensor.film()
     width, height = film.crop_size()
