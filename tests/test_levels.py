@@ -138,3 +138,31 @@ def test_a_level_neither_reaches_is_not_measured():
     assert levels[-1].speedup is None
     assert levels[-1].verdict == levels[-1].goal == "not measured"
     assert GOAL == 2.0
+
+
+def test_levels_below_paths_floor_read_as_never_reached():
+    """Against a reference with light path cannot find, path's error stops
+    at its floor: the levels at or below it say path never reaches them,
+    with no time extrapolated from its curves, and the levels above are as
+    without a floor; results.json carries it."""
+    ladder = _ladder((1, 4, 16, 64), PATH_ERROR, PATH_SECONDS / 4)
+    noise = PATH_ERROR / 64 / NOISE_MULTIPLE
+    plain = analyse_levels(_sweep(ladder), noise=noise)
+    floor = 4e-3
+    levels = analyse_levels(_sweep(ladder), noise=noise, path_floor=floor)
+    assert [level.error for level in levels] == [level.error for level in plain]
+    below = [level for level in levels if level.error <= floor]
+    assert below and len(below) < len(levels)
+    for level, before in zip(levels, plain):
+        if level.error > floor:
+            assert level.path_reaches and level.speedup == before.speedup
+            continue
+        assert not level.path_reaches and level.speedup is None
+        assert level.verdict == "path never reaches" and math.isinf(level.path.median)
+        # The ladder still reaches it, which path never does.
+        assert level.setting is not None and level.goal == "met"
+    entry = json_data(LevelEntry.of(below[0]))
+    assert entry["path_reaches"] is False and entry["path"]["seconds"]["median"] is None
+    assert entry["verdict"] == "path never reaches" and entry["speedup"] is None
+    # No floor (a path reference) leaves every level as it was.
+    assert all(level.path_reaches for level in plain)

@@ -17,9 +17,13 @@ import mitsuba as mi
 import numpy as np
 
 from mitsuba_whitted.camera import camera_rays, pixel_centres
-from mitsuba_whitted.compare import path_batches
+from mitsuba_whitted.compare import cache_key, cached_reference, luminance, path_batches
+from mitsuba_whitted.compare.photon_reference import (PHOTON_SETTINGS, full_reference,
+                                                      path_floor, reference_name)
+from mitsuba_whitted.compare.reference import PATH_DEPTH, path_settings
 from mitsuba_whitted.integrators.settings import is_whitted
 from validation import scenes
+from validation.oracles import light_tracer
 from validation.stability import cylinder
 from validation.stability.common import SEED, float32_rays, unit_rows
 
@@ -302,3 +306,64 @@ def pass_through_shares(integrators: dict, batches: int = 8, spp: int = 16) -> d
                  else np.zeros(ratio.shape[1]))
         shares[name] = (ratio.mean(axis=0), error)
     return shares
+
+
+# --- delta lights through delta and null surfaces ------------------------------
+
+#: Light paths per pixel of the light tracer's reference of these cases, in
+#: passes; and path's samples per pixel.
+LIGHT_SPP, LIGHT_PASSES, MISSING_PATH_SPP = 16384, 32, 1024
+
+
+def at_path_depth(description: dict) -> dict:
+    """``description`` with its ``whitted`` at path's depth, which the light
+    tracer takes for its own, so that all three count the same paths."""
+    integrator = dict(description.get("integrator") or {"type": "whitted"},
+                      max_depth=PATH_DEPTH)
+    return dict(description, integrator=integrator)
+
+
+@dataclass
+class MissingLight:
+    """Path, the full reference (path + photons) and the light tracer on a
+    scene where path misses light: relMSE against the light tracer on the
+    pixels it renders right (``mask``), less the noise of both, and the
+    share of the light tracer's light there that path lacks."""
+
+    mask: np.ndarray
+    path: np.ndarray
+    reference: np.ndarray
+    light: np.ndarray
+    reference_name: str
+    path_error: float
+    reference_error: float
+    light_noise: float
+    missing_share: float
+    path_floor: float
+
+
+def missing_light_case(cache, name: str, description: dict, photons=None) -> MissingLight:
+    """The figures of :class:`MissingLight` for ``description`` (taken at
+    path's depth), every render cached in ``cache``."""
+    description = at_path_depth(description)
+    scene = mi.load_dict(description)
+    settings = path_settings()
+    key = cache_key(kind="reference error", name=name, scene=description,
+                    spp=MISSING_PATH_SPP, integrator=settings)
+    path = cached_reference(cache, key, scene, MISSING_PATH_SPP, settings=settings)
+    reference = full_reference(cache, description, scene, path, photons or PHOTON_SETTINGS)
+    light = light_tracer.ptracer_reference(description, LIGHT_SPP, LIGHT_PASSES, cache=cache)
+    mask = light_tracer.smooth_first_mask(scene)
+
+    def bias(image, variance):
+        return (light_tracer.masked_rel_mse(image, light.image, mask)
+                - light_tracer.masked_noise_rel_mse(variance + light.variance, light.image,
+                                                    mask))
+
+    found = luminance(light.image)[mask].sum()
+    return MissingLight(mask, path.image, reference.image, light.image,
+                        reference_name(reference), bias(path.image, path.variance),
+                        bias(reference.image, reference.variance),
+                        light_tracer.masked_noise_rel_mse(light.variance, light.image, mask),
+                        float(1 - luminance(path.image)[mask].sum() / found),
+                        path_floor(reference))

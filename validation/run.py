@@ -26,8 +26,11 @@ from mitsuba_whitted.compare import (PATH_SAMPLERS, CompareOptions, ReferenceCac
 from mitsuba_whitted.compare.equal_error import time_estimates
 from mitsuba_whitted.compare.report import MarkdownReport, number
 from mitsuba_whitted.compare.intervals import verdict_text
+from mitsuba_whitted.compare.photon_reference import (PHOTON_SETTINGS, full_reference,
+                                                      path_floor, reference_name)
 from mitsuba_whitted.compare.scene_report import (levels_sentence, levels_table,
-                                                  speedup_sentence, split_sentence,
+                                                  reference_sentence, speedup_sentence,
+                                                  split_sentence,
                                                   timing_sentence, verdict_sentences,
                                                   whitted_table)
 from mitsuba_whitted.files import replaced_folder
@@ -39,7 +42,7 @@ from validation import reference_errors
 from validation.equivalence import (ALPHA, BLEND_DIFFUSE, BLEND_WEIGHT, blend_scene,
                                     equivalence_cases, equivalence_path, equivalence_rays,
                                     run_equivalence)
-from validation.scenes import REPORT_SCENE, SPEED
+from validation.scenes import REPORT_SCENE, SPEED, glass_ball_caustic, index_matched_shadow
 from validation.stability import run_stability, stability_markdown
 from validation.stability.cylinder import CYLINDER_BAND
 
@@ -146,11 +149,12 @@ def report_scene_section(report: MarkdownReport, cache: ReferenceCache, backend)
     defines = {"res": str(SCENE_RES)}
     scene = mitsuba_whitted.load_file(REPORT_SCENE, **defines)
     source = SceneSource(REPORT_SCENE, defines, scene)
-    key = cache_key(kind="report scene",
-                    scene=scene_without_integrator_digest(REPORT_SCENE, defines),
-                    spp=SCENE_SPP, passes=16, integrator={"type": "path", "max_depth": 32})
-    reference = cached_reference(cache, key, source, SCENE_SPP, progress=Progress(),
-                                 backend=backend)
+    identity = scene_without_integrator_digest(REPORT_SCENE, defines)
+    key = cache_key(kind="report scene", scene=identity, spp=SCENE_SPP, passes=16,
+                    integrator={"type": "path", "max_depth": 32})
+    path = cached_reference(cache, key, source, SCENE_SPP, progress=Progress(),
+                            backend=backend)
+    reference = full_reference(cache, identity, scene, path, PHOTON_SETTINGS)
     base = {"type": "whitted", **scene_whitted_settings(scene)}
     looks = [Setting("report's look", "whitted", base),
              Setting("physical", "whitted", {**base, "shadows": "physical",
@@ -173,8 +177,10 @@ def report_scene_section(report: MarkdownReport, cache: ReferenceCache, backend)
         "report's ambient term (0.2) and `shadows=\"tinted\"`, which lets tinted light "
         "through the refracting glass. *Physical*: the same with no ambient term and "
         "`shadows=\"physical\"`, where glass casts a shadow as it does for the path tracer. "
-        f"Reference: `path` (max_depth 32), {reference.spp} spp in 16 passes, "
-        f"{reference.seconds:.0f} s to render; its own noise is a relMSE of {number(noise)}. "
+        f"Reference: {reference_name(reference)}; `path` (max_depth 32), {path.spp} spp in "
+        f"16 passes, {reference.seconds:.0f} s to render in all; its own noise is a relMSE "
+        f"of {number(noise)}; path's own floor against it, a relMSE of "
+        f"{number(path_floor(reference))}. "
         "Mitsuba's `path` sees the capped cylinder as its 64-segment proxy mesh. "
         f"{timing_sentence(ROUNDS)}")
     report.table(["Whitted", "first render (s)", "warm render (s)", "relMSE", "FLIP",
@@ -187,7 +193,7 @@ def report_scene_section(report: MarkdownReport, cache: ReferenceCache, backend)
         "report's look).")
     maps = {label: missing_light(image, reference.image) for label, image in images.items()}
     vmax = max(float(np.percentile(m, 99.5)) for m in maps.values())
-    report.figures([(report.image("cosc363_reference.png", reference.image), "path reference"),
+    report.figures([(report.image("cosc363_reference.png", reference.image), "reference"),
                     (report.image("cosc363_look.png", images["report's look"]),
                      "Whitted, report's look"),
                     (report.image("cosc363_physical.png", images["physical"]),
@@ -223,7 +229,9 @@ def write_speed_section(report: MarkdownReport, settings: SpeedSettings,
         "depths, and the hybrid ladder: indirect light on path's model, 4 to 256 paths per "
         "pixel) and `path` at 1, 2, 4, ... {options.path_max_spp} spp with each of its "
         f"samplers ({', '.join(PATH_SAMPLERS)}), against a {options.reference_spp}-spp "
-        f"`path` reference. {timing_sentence(options.rounds)} "
+        "`path` reference, plus the light `path` misses from photons where a delta light "
+        "reaches a smooth surface through a delta or null one (each scene names its "
+        f"reference and path's floor). {timing_sentence(options.rounds)} "
         f"{split_sentence(options.converged_side)} {speedup_sentence()} The full report of "
         "each scene (images, crops, error maps, path's rungs) is linked.")
     for index, result in enumerate(comparisons, start=1):
@@ -235,6 +243,7 @@ def write_speed_section(report: MarkdownReport, settings: SpeedSettings,
                          "and zoomed, with their error maps, open as a file in a browser.")
         report.figure(f"{link}/images/speed_vs_error.png",
                       f"{result.scene_path.name}: relMSE and FLIP against time")
+        report.paragraph(reference_sentence(result.results.reference))
         whitted_table(report, result.results)
         for sentence in verdict_sentences(result.results):
             report.paragraph(sentence)
@@ -298,9 +307,10 @@ def reference_section(report: MarkdownReport, cache: ReferenceCache) -> None:
         "`tests/test_reference_errors.py` checks that Mitsuba is still wrong in the way "
         "described (a Mitsuba that fixes a case makes its test fail with a message saying "
         "so) and that this package is right. 5.3 and 5.4 are the places where an "
-        "equivalence scene disagrees, or would, only because the reference is wrong.")
+        "equivalence scene disagrees, or would, only because the reference is wrong; 5.5 "
+        "and 5.6 are where the reference of sections 2 and 3 adds photons to `path`.")
     for section in (blend_section, cylinder_section, blend_equivalence_section,
-                    pass_through_section):
+                    pass_through_section, caustic_section, index_matched_section):
         section(report, cache)
 
 
@@ -467,6 +477,58 @@ def pass_through_section(report: MarkdownReport, cache: ReferenceCache) -> None:
                       _path_image(cache, "pass through", description, "volpath")),
          f"volpath, {ERROR_IMAGE_SPP} spp"),
         (report.image("pass_through_whitted.png", _whitted_image(description)), "whitted")])
+
+
+def caustic_section(report: MarkdownReport, cache: ReferenceCache) -> None:
+    report.heading("5.5 A point light's caustic under a glass ball", level=3)
+    missing_light_section(
+        report, cache, "glass ball caustic", glass_ball_caustic(),
+        "A glass ball (index 1.5) on a diffuse floor, lit by a point light low to one side: "
+        "the ball focuses the light onto the floor beside it. *Cause*: "
+        "`src/integrators/path.cpp`, `PathIntegrator::sample`: light from a point light "
+        "arrives only by emitter sampling, whose shadow ray stops at the glass, and a path "
+        "that refracts through the ball cannot hit a point; so `path` renders the ball's "
+        "shadow with no caustic in it, however many samples it takes.")
+
+
+def index_matched_section(report: MarkdownReport, cache: ReferenceCache) -> None:
+    report.heading("5.6 The shadow of an index-matched ball", level=3)
+    missing_light_section(
+        report, cache, "index-matched shadow", index_matched_shadow(),
+        "A `dielectric` ball of equal indices (1 inside and out: it bends and reflects "
+        "nothing) over a diffuse floor under a point light. The truth is no shadow at all. "
+        "*Cause*: as in 5.4 and 5.5, the shadow ray of `PathIntegrator::sample` stops at "
+        "the ball, a delta transmission, and no path can reach the point light through it: "
+        "`path` draws a full shadow.")
+
+
+def missing_light_section(report: MarkdownReport, cache: ReferenceCache, name: str,
+                          description: dict, text: str) -> None:
+    """Path, the full reference and the light tracer on a scene where path
+    misses light: the figures on the light tracer's mask, and the images."""
+    case = reference_errors.missing_light_case(cache, name, description)
+    report.paragraph(
+        f"{text} All three at `path`'s depth ({reference_errors.PATH_DEPTH}): `path` "
+        f"{reference_errors.MISSING_PATH_SPP} spp; the reference the comparison uses, "
+        f"{case.reference_name}; and Mitsuba's light tracer `ptracer` "
+        f"({reference_errors.LIGHT_SPP} light paths per pixel in "
+        f"{reference_errors.LIGHT_PASSES} passes), right on the pixels whose every sub-ray "
+        f"sees a smooth surface first ({100 * case.mask.mean():.0f}% of the image, white in "
+        "the mask; `validation/oracles/light_tracer.py`). relMSE on those pixels against "
+        "`ptracer`, less the noise of both estimates; *path's floor*: `path` against the "
+        "full reference over the whole image, less noise.")
+    slug = name.replace(" ", "_").replace("-", "_")
+    report.table(["", "relMSE against ptracer (mask)", "light missing (mask)"],
+                 [["path", number(case.path_error), f"{100 * case.missing_share:.1f}%"],
+                  [case.reference_name, number(case.reference_error), "-"],
+                  ["ptracer's own noise", number(case.light_noise), "-"],
+                  ["path's floor against the reference", number(case.path_floor), "-"]])
+    report.figures([
+        (report.image(f"{slug}_path.png", case.path), "path"),
+        (report.image(f"{slug}_reference.png", case.reference), case.reference_name),
+        (report.image(f"{slug}_ptracer.png", case.light), "ptracer"),
+        (report.image(f"{slug}_mask.png", np.repeat(case.mask[..., None], 3, axis=2)
+                      .astype(np.float64)), "where ptracer is right")])
 
 
 # ---------------------------------------------------------------------- machine

@@ -22,6 +22,13 @@ The speed-up is then bounded above (0 where no setting's model allows the
 error). An error that path's largest rung does not reach leaves path's
 time open above, and the speed-up bounded below; where neither reaches
 it, nothing is measured.
+
+Where the reference has light that ``path`` cannot find
+(:mod:`.photon_reference`), ``path``'s error never falls below its floor,
+the relMSE of ``path`` alone against the reference: at a level at or
+below it, no number of samples gets there, and the level says so
+(:attr:`Level.path_reaches` false, path's time infinite) instead of
+extrapolating path's curves.
 """
 
 from __future__ import annotations
@@ -47,6 +54,8 @@ LEVELS_PER_DECADE = 2
 GOAL = 2.0
 #: The metric the levels are measured in.
 LEVEL_METRIC = "relmse"
+#: What a level below path's floor says of path.
+PATH_NEVER = "path never reaches"
 
 
 def error_levels(noise: float, top: float = TOP_LEVEL) -> list[float]:
@@ -75,15 +84,21 @@ class Level:
     setting: str | None
     paths: float | None
     speedup: Estimate | None
+    path_reaches: bool = True
 
     @property
     def verdict(self) -> str:
+        if not self.path_reaches:
+            return PATH_NEVER
         return "not measured" if self.speedup is None else verdict(self.speedup)
 
     @property
     def goal(self) -> str:
-        """``met`` where the interval lies at or above :data:`GOAL`,
-        ``missed`` where it lies below, else ``undecided``."""
+        """``met`` where the interval lies at or above :data:`GOAL` (or where
+        the family reaches a level that path never does), ``missed`` where
+        it lies below, else ``undecided``."""
+        if not self.path_reaches:
+            return "met" if self.setting is not None else "not measured"
         if self.speedup is None:
             return "not measured"
         if self.speedup.low >= GOAL:
@@ -130,24 +145,28 @@ def family_curves(sweep: Sweep, biases: dict | None = None) -> list[FamilyCurve]
     return curves
 
 
-def analyse_levels(sweep: Sweep, noise: float, biases: dict | None = None) -> list[Level]:
+def analyse_levels(sweep: Sweep, noise: float, biases: dict | None = None,
+                   path_floor: float = 0.0) -> list[Level]:
     """Path's and the family's time at each level of :func:`error_levels`
     for ``noise`` (the reference's own relMSE), from one bootstrap;
-    ``biases``: each Whitted setting's model bias in relMSE, by label."""
+    ``biases``: each Whitted setting's model bias in relMSE, by label;
+    ``path_floor``: the relMSE below which path never gets (0: none)."""
     errors = replicated_errors(sweep, LEVEL_METRIC)
     times = replicated_times(sweep)
     curves = family_curves(sweep, biases)
-    return [_level(sweep, curves, errors, times, error)
+    return [_level(sweep, curves, errors, times, error, error > path_floor)
             for error in error_levels(noise)]
 
 
+#: Path's time and samples at a level it never reaches.
+NEVER = Estimate(math.inf, math.inf, math.inf, ">")
+
+
 def _level(sweep: Sweep, curves: list[FamilyCurve], errors: np.ndarray, times: np.ndarray,
-           error: float) -> Level:
+           error: float, path_reaches: bool = True) -> Level:
     target = np.full(len(errors), error)
-    path = path_reach(sweep, errors, times, target)
     family = envelope([_family_reach(c, errors, times, target, number)
                        for number, c in enumerate(curves)])
-    path_time = bounded(path.low[0], path.high[0], path.low[1:], path.high[1:])
     # A replicate's time: where the family reaches the level, the least
     # time that does; where it does not, the least time it could.
     seconds = np.where(np.isfinite(family.high), family.high, family.low)
@@ -158,6 +177,10 @@ def _level(sweep: Sweep, curves: list[FamilyCurve], errors: np.ndarray, times: n
     curve = curves[family.curve[0]]
     setting, paths = _family_setting(sweep, curve, family.spp_high[0]) if reached else (None,
                                                                                       None)
+    if not path_reaches:
+        return Level(error, NEVER, NEVER, "none", whitted_time, setting, paths, None, False)
+    path = path_reach(sweep, errors, times, target)
+    path_time = bounded(path.low[0], path.high[0], path.low[1:], path.high[1:])
     return Level(error, path_time,
                  bounded(path.spp_low[0], path.spp_high[0], path.spp_low[1:], path.spp_high[1:]),
                  sweep.path_curves()[path.curve[0]][0], whitted_time, setting, paths,

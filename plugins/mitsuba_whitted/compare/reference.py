@@ -3,6 +3,7 @@
 A reference is the mean of ``passes`` independent ``path`` renders; the
 spread between the passes estimates its noise (the per-pixel variance of
 the mean), so a report can say how much of any error is the reference's.
+Where ``path`` misses light, :mod:`.photon_reference` adds it.
 """
 
 from __future__ import annotations
@@ -36,6 +37,14 @@ class Reference:
     spp: int
     seconds: float        # wall time of the render (when it was made)
     cached: bool
+    #: The photon part (:class:`.photon_reference.PhotonPart`) where the
+    #: reference adds the light ``path`` misses, and ``path``'s alone.
+    photons: object = None
+    path_only: "Reference | None" = None
+
+    def path_alone(self) -> "Reference":
+        """The ``path`` part of the reference: itself unless it has photons."""
+        return self if self.path_only is None else self.path_only
 
 
 def rgb_pixels(image) -> np.ndarray:

@@ -12,13 +12,39 @@ from .levels import GoalSummary, Level
 
 
 @dataclass
+class PhotonFigures:
+    """The reference's photon part: photons per pass, passes per run,
+    independent runs, its render time, whether it came from the cache, its
+    own noise (relMSE) and the gather radius of a run's first and last
+    passes (scene units)."""
+
+    photons: int
+    passes: int
+    runs: int
+    seconds: float
+    cached: bool
+    noise_rel_mse: float
+    radius_first: float
+    radius_last: float
+
+
+@dataclass
 class ReferenceFigures:
+    """The reference: ``name`` says which it is (``path``, or ``path +
+    photons (N photons x P passes)``); ``seconds`` and ``noise_rel_mse``
+    are of the whole of it; ``path_floor_rel_mse``, path's own error
+    against it (0 where it is path alone); ``photons``, its photon part
+    (``None`` where it has none)."""
+
     spp: int
     passes: int
     seconds: float
     cached: bool
     noise_rel_mse: float
     size: list
+    name: str = "path"
+    path_floor_rel_mse: float = 0.0
+    photons: PhotonFigures | None = None
 
 
 @dataclass
@@ -126,21 +152,26 @@ class LevelEntry:
     speedup: Estimate | None
     verdict: str
     goal: str
+    path_reaches: bool = True
 
     @classmethod
     def of(cls, level: Level) -> "LevelEntry":
         return cls(level.error, PathThere(level.path, level.path_spp, level.sampler),
                    FamilyThere(level.whitted, level.setting, level.paths), level.speedup,
-                   level.verdict, level.goal)
+                   level.verdict, level.goal, level.path_reaches)
 
 
 @dataclass
 class LevelsFigures:
+    """The levels; ``path_floor``: the relMSE below which path never
+    gets, the levels there marked so (0: none)."""
+
     metric: str
     top: float
     noise_multiple: float
     entries: list[LevelEntry]
     summary: GoalSummary
+    path_floor: float = 0.0
 
 
 @dataclass

@@ -28,14 +28,18 @@ from ..system import machine
 from .cache import ReferenceCache, cache_key
 from .converged import CONVERGED_SIDE, QUICK_SIDE, converged_renders, mean_errors
 from .equal_error import Analysis, Gain, analyse
-from .levels import GOAL, LEVEL_METRIC, NOISE_MULTIPLE, TOP_LEVEL, analyse_levels, goal_summary
+from .levels import (GOAL, LEVEL_METRIC, NOISE_MULTIPLE, PATH_NEVER, TOP_LEVEL, analyse_levels,
+                     goal_summary)
 from .intervals import (RELATION_PREFIX, REPLICATES, SEED, TAIL, estimate_text, json_data,
                         verdict_text)
 from .metrics import (METRIC_NAMES, TILE_SIDES, missing_energy_share, missing_light, noise_rel_mse,
                       rel_squared_error)
+from .photon_reference import (PHOTON_SETTINGS, QUICK_PHOTON_SETTINGS, PhotonSettings,
+                               full_reference, path_floor, reference_name)
 from .reference import Reference, cached_reference, path_settings
 from .results import (CompareResults, ConvergedFigures, ConvergedRender, Crossing, FamilyThere,
-                      LevelEntry, LevelsFigures, PathRung, PathThere, ReferenceFigures,
+                      LevelEntry, LevelsFigures, PathRung, PathThere, PhotonFigures,
+                      ReferenceFigures,
                       TimingFigures, WhittedFigures, gain_fields)
 from .report import Curve, MarkdownReport, Marker, Panel, number, shared_vmax, worst_window
 from .sweep import (Sweep, SweepPoint, path_ladder, run_sweep, sampler_sensors,
@@ -78,6 +82,11 @@ class CompareOptions:
     @property
     def converged_side(self) -> int:
         return QUICK_SIDE if self.quick else CONVERGED_SIDE
+
+    @property
+    def photon_settings(self) -> PhotonSettings:
+        """How the reference's photon part converges, where it has one."""
+        return QUICK_PHOTON_SETTINGS if self.quick else PHOTON_SETTINGS
 
 
 @dataclass
@@ -155,20 +164,25 @@ def measure_scene(source: SceneSource, options: CompareOptions, cache_dir: str |
     file ``source``, and its results, without the report (``report`` is
     ``None``)."""
     cache = ReferenceCache(cache_dir)
-    reference = cached_reference(cache, reference_key(source.path, source.defines,
-                                                      options.reference_spp),
-                                 source, options.reference_spp, REFERENCE_PASSES,
-                                 path_settings(), progress, backend)
+    path = cached_reference(cache, reference_key(source.path, source.defines,
+                                                 options.reference_spp),
+                            source, options.reference_spp, REFERENCE_PASSES,
+                            path_settings(), progress, backend)
     _finish(progress)
     scene = source.scene
+    reference = full_reference(cache, scene_without_integrator_digest(source.path,
+                                                                      source.defines),
+                               scene, path, options.photon_settings)
     variants = whitted_variants(scene_whitted_settings(scene), options.quick)
     sweep = run_sweep(scene, reference,
                       whitted_settings(variants) + path_ladder(options.path_max_spp),
                       sampler_sensors(source.path, source.defines), options.rounds, progress)
     _finish(progress)
     analysis = analyse(sweep)
+    # Whitted's settings on path's model converge to path's image, not to
+    # the light path misses.
     converged = converged_renders(scene, source.digest, variants, cache, options.converged_side,
-                                  reference)
+                                  reference.path_alone())
     results = _results(source.path.name, reference, sweep, analysis, converged, options,
                        scene.sensors()[0].film().rfilter().class_name())
     return SceneComparison(source.path, source.defines, reference, sweep, analysis, converged,
@@ -201,12 +215,15 @@ def _results(name: str, reference: Reference, sweep: Sweep, analysis: Analysis,
     biases = {id(c): mean_errors(c.image, reference.image) for c in renders}
     shown = {p.label for p in shown_rungs(sweep)}
     noise = noise_rel_mse(reference.variance, reference.image)
+    floor = path_floor(reference)
     levels = analyse_levels(sweep, noise, {label: biases[id(c)]["relmse"]
-                                           for label, c in converged.items()})
+                                           for label, c in converged.items()}, floor)
     return CompareResults(
         scene=name,
         reference=ReferenceFigures(reference.spp, REFERENCE_PASSES, reference.seconds,
-                                   reference.cached, noise, list(reference.image.shape[:2])),
+                                   reference.cached, noise, list(reference.image.shape[:2]),
+                                   reference_name(reference), floor,
+                                   photon_figures(reference)),
         metrics=sweep.metrics,
         timing=TimingFigures(options.rounds, REPLICATES, SEED, TILE_SIDES, 1 - 2 * TAIL),
         converged=ConvergedFigures(options.converged_side,
@@ -222,11 +239,43 @@ def _results(name: str, reference: Reference, sweep: Sweep, analysis: Analysis,
                                  spp=sweep.points[i].spp) for i in columns]
               for sampler, columns, _ in sweep.path_curves()},
         levels=LevelsFigures(LEVEL_METRIC, TOP_LEVEL, NOISE_MULTIPLE,
-                             [LevelEntry.of(level) for level in levels], goal_summary(levels)),
+                             [LevelEntry.of(level) for level in levels], goal_summary(levels),
+                             floor),
         crossing={metric: _crossing(*analysis.crossing(sweep, metric))
                   for metric in sweep.metrics},
         missing_energy_share=missing_energy_share(_first_whitted(sweep).image, reference.image),
         film_filter=film_filter)
+
+
+def photon_figures(reference: Reference) -> PhotonFigures | None:
+    """The figures of the reference's photon part, if it has one."""
+    part = reference.photons
+    if part is None:
+        return None
+    return PhotonFigures(part.settings.photons, part.settings.passes, part.settings.runs,
+                         part.seconds, part.cached, noise_rel_mse(part.variance, reference.image),
+                         part.radius_first, part.radius_last)
+
+
+def reference_sentence(figures: ReferenceFigures) -> str:
+    """Which the reference is, and path's own error against it."""
+    if figures.photons is None:
+        return ("Reference: Mitsuba's `path` alone: the scene has no delta light seen "
+                "through a delta or null surface, where `path` misses light.")
+    part = figures.photons
+    return (f"Reference: {figures.name}: `path` misses the light of delta lights through "
+            "delta or null surfaces here (caustics, and the light through index-1 or null "
+            "surfaces), which progressive photon mapping adds "
+            f"({part.runs} independent runs of {part.passes} passes of {part.photons} "
+            f"photons, {part.seconds:.1f} s, "
+            f"{'taken from the cache' if part.cached else 'rendered for this report'}; "
+            f"gather radius {number(part.radius_first)} in the first pass to "
+            f"{number(part.radius_last)} in the last, scene units; its noise, from the "
+            f"spread of the runs, a relMSE of {number(part.noise_rel_mse)}, and its blur "
+            "over the radius not counted in it). What a diffuse bounce sees of that light is "
+            "still missing. *Path's floor*: `path` alone against this reference, less the "
+            f"photon part's noise, a relMSE of {number(figures.path_floor_rel_mse)}: no "
+            "number of `path` samples gets below it.")
 
 
 def _point_fields(point: SweepPoint, analysis: Analysis, has_image: bool) -> dict:
@@ -275,12 +324,15 @@ def _write_report(out_dir, scene_path, defines, reference, sweep, converged, res
     origin = "taken from the cache" if reference.cached else "rendered for this report"
     summary = (
         f"Scene `{scene_path.name}`{f' ({defined})' if defined else ''}, {width} x {height} "
-        f"pixels. Reference: Mitsuba's `path` (max_depth {path_settings()['max_depth']}), "
-        f"{reference.spp} spp in {REFERENCE_PASSES} independent passes, {origin} "
-        f"({reference.seconds:.1f} s to render); its own noise, estimated from the spread of "
-        f"the passes, is a relMSE of {number(results.reference.noise_rel_mse)}. "
+        f"pixels. Reference: {results.reference.name}. Mitsuba's `path` "
+        f"(max_depth {path_settings()['max_depth']}), "
+        f"{reference.path_alone().spp} spp in {REFERENCE_PASSES} independent passes, {origin} "
+        f"({reference.seconds:.1f} s to render in all); the reference's own noise, estimated "
+        f"from the spread of the passes (and of the photon runs), is a relMSE of "
+        f"{number(results.reference.noise_rel_mse)}. "
         f"{timing_sentence(results.timing.rounds)} Machine: {machine()}.")
     report.paragraph(summary)
+    report.paragraph(reference_sentence(results.reference))
     if results.film_filter != "BoxFilter":
         report.paragraph(
             f"Note: the film's reconstruction filter is `{results.film_filter}`; the path "
@@ -382,6 +434,10 @@ def levels_table(report: MarkdownReport, results: CompareResults) -> None:
                          f"{NOISE_MULTIPLE:g} is above {TOP_LEVEL:g}.")
         return
     report.paragraph(levels_sentence())
+    if levels.path_floor > 0:
+        report.paragraph(f"Path's floor here is a relMSE of {number(levels.path_floor)}: "
+                         f"at the levels at or below it, *{PATH_NEVER}*, whatever its "
+                         "samples.")
     report.table(*level_rows(results))
     report.paragraph(f"The goal is met at {summary.met} of {summary.levels} levels; "
                      f"the family is faster at {summary.faster}.")
@@ -391,12 +447,21 @@ def level_rows(results: CompareResults) -> tuple[list[str], list[list]]:
     """The header and rows of the table of error levels."""
     return (["relMSE level", "path there", "Whitted family there", "speed-up",
              f"{GOAL:g}x goal"],
-            [[number(entry.error), _path_cell(entry.path), _family_cell(entry.whitted),
-              "-" if entry.speedup is None else verdict_text(entry.speedup), entry.goal]
+            [[number(entry.error), _path_cell(entry.path, entry.path_reaches),
+              _family_cell(entry.whitted),
+              _speedup_cell(entry), entry.goal]
              for entry in results.levels.entries])
 
 
-def _path_cell(path: PathThere) -> str:
+def _speedup_cell(entry: LevelEntry) -> str:
+    if not entry.path_reaches:
+        return PATH_NEVER
+    return "-" if entry.speedup is None else verdict_text(entry.speedup)
+
+
+def _path_cell(path: PathThere, reaches: bool = True) -> str:
+    if not reaches:
+        return f"{PATH_NEVER}: below its floor"
     return (f"{estimate_text(path.seconds, digits=3)} s, {number(path.spp.median, 2)} spp, "
             f"{path.sampler}")
 
@@ -511,8 +576,8 @@ def _image_grid(report, reference, sweep, converged, keep_linear):
     maps = [rel_squared_error(p.image, reference.image) for p in shown]
     vmax = shared_vmax(maps)
     link = report.image("reference.png", reference.image)
-    report.figures([(link, "path reference")])
-    images = [ViewerImage("path reference", "reference", link, reference.image)]
+    report.figures([(link, "reference")])
+    images = [ViewerImage("reference", "reference", link, reference.image)]
     for p, error in zip(shown, maps):
         name = slug(p.label)
         if keep_linear:
@@ -542,7 +607,7 @@ def _crops(report, reference, sweep, converged):
         f"where *{coarsest.label}*, the setting with the largest sampling error, differs "
         f"most from its converged render; each pixel enlarged {factor} times.")
     items = [(report.crop("crop_reference.png", reference.image, corner, side, factor),
-              "path reference"),
+              "reference"),
              (report.crop("crop_converged.png", converged[coarsest.label].image, corner, side,
                           factor), f"Whitted converged ({coarsest.label}'s model)")]
     items += [(report.crop(f"crop_{slug(p.label)}.png", p.image, corner, side, factor),
