@@ -153,7 +153,10 @@ def emitted_rays(share: EmitterShare, index: mi.UInt32, sequence: PaddedSobol):
     u1, u2 = sequence.point(index, 0), sequence.point(index, 1)
     if not share.aimed:
         ray, weight = share.emitter.sample_ray(0.0, u1.x, u1, u2)
-        return mi.Ray3f(ray), mi.Color3f(weight) / share.count
+        # A uniform emitter's weight is one value for all its rays: made
+        # as wide as they are, so that each photon has its own.
+        power = mi.Color3f(weight) / share.count + dr.zeros(mi.Color3f, dr.width(index))
+        return mi.Ray3f(ray), power
     origin = mi.Point3f(*share.position)
     d = _aimed_direction(share, u1.x, u2)
     it = dr.zeros(mi.Interaction3f, dr.width(index))

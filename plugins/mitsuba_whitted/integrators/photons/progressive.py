@@ -42,7 +42,7 @@ from .tracing import PHOTON_BYTES, TRAVELLING_BYTES, PhotonKinds, PhotonTracer, 
 #: The radius reduction of every pass (Hachisuka and Jensen's alpha).
 ALPHA = 2.0 / 3.0
 #: The first radius, in pixel widths at the camera's typical distance.
-FOOTPRINT_PIXELS = 1.0
+FOOTPRINT_PIXELS = 0.5
 #: Pixels per side of the grid of camera rays that measures the footprint.
 FOOTPRINT_PROBES = 64
 #: Of the memory left, the share a pass's photons may take.
