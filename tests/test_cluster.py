@@ -71,9 +71,10 @@ def _running_tasks():
 
 def _is_reference(entry) -> bool:
     """Whether a cache entry is a path reference (the cache holds Whitted's
-    converged renders too): only a reference has a variance."""
+    converged renders and a reference's photon part too): only a path
+    reference has a variance and no gather radius."""
     with np.load(entry) as arrays:
-        return "variance" in arrays.files
+        return "variance" in arrays.files and "radius_first" not in arrays.files
 
 
 def test_reference_through_cluster_is_bit_identical_after_a_worker_is_killed(cluster, tmp_path):

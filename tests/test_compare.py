@@ -219,6 +219,11 @@ def test_compare_quick_writes_a_consistent_report(tmp_path):
     for rungs in results["path"].values():
         assert [rung["spp"] for rung in rungs] == [1, 2, 4, 8, 16]
     path = results["path"]["independent"]
+    reference_figures = results["reference"]
+    assert reference_figures["name"] == "path + photons (100000 photons x 8 passes)"
+    assert reference_figures["name"] in report and "*Path's floor*" in report
+    assert reference_figures["path_floor_rel_mse"] > 0
+    assert results["levels"]["path_floor"] == reference_figures["path_floor_rel_mse"]
     for label, point in whitted.items():
         image = read_image(images / f"{point['image']}.exr")
         assert_finite(image)
@@ -234,10 +239,16 @@ def test_compare_quick_writes_a_consistent_report(tmp_path):
             there = point["path_at_equal_error"][metric]["seconds"]["median"]
             assert speedup["median"] == pytest.approx(there / point["seconds"]["median"])
             if point["settings"].get("indirect_samples"):
-                # Path's model: it converges to the reference itself.
-                assert point["model_bias"][metric] == 0
-                assert point["sampling_error"][metric] == pytest.approx(
-                    point["rel_mse"] if metric == "relmse" else point["flip"])
+                # Path's model: it converges to path's part of the
+                # reference, which here lacks the photons' light (glass
+                # under point lights): its bias is path's floor, with the
+                # photons' noise that the floor leaves out.
+                if metric == "relmse":
+                    assert point["model_bias"][metric] == pytest.approx(
+                        reference_figures["path_floor_rel_mse"]
+                        + reference_figures["photons"]["noise_rel_mse"], rel=1e-9)
+                else:
+                    assert point["model_bias"][metric] > 0
             else:
                 # A setting's sampling error is against its own converged
                 # render, which shares the model's bias.
@@ -251,6 +262,7 @@ def test_compare_quick_writes_a_consistent_report(tmp_path):
     for entry in levels["entries"]:
         assert f"| {number(entry['error'])} | " in report
         assert entry["goal"] in ("met", "missed", "undecided", "not measured")
+        assert entry["path_reaches"] == (entry["error"] > levels["path_floor"])
     share = results["missing_energy_share"]
     assert 0 < share < 1 and f"{100 * share:.1f}%" in report
     # Marked as a comparison's folder, which the next comparison may rewrite.
