@@ -14,9 +14,11 @@ import numpy as np
 import pytest
 
 from conftest import assert_finite, cli, one_line
+from mitsuba_whitted.compare.metrics import rel_mse
 from mitsuba_whitted import load_file
 from mitsuba_whitted.errors import ParameterError
-from mitsuba_whitted.integrators import sequence
+from mitsuba_whitted.integrators import indirect, sequence
+from mitsuba_whitted.integrators.camera_shader import pixel_keys
 from validation.scenes import GLASS_BOX, camera, diffuse, floor, point_light, scene, sphere
 
 
@@ -27,13 +29,15 @@ def render(description_or_scene, **settings):
     return np.array(mi.render(loaded, integrator=whitted)), whitted
 
 
-def lit_ball(size=24):
+def lit_ball(size=24, sampler=None):
     """A diffuse ball on a diffuse floor under a point light, on an RGBA
     film: the floor lights the ball's underside, which classic Whitted
-    leaves black."""
+    leaves black. ``sampler``: the sensor's, for ``path``."""
+    sensor = camera(origin=(0, 1, 5), size=size, crop={"pixel_format": "rgba"})
+    if sampler is not None:
+        sensor["sampler"] = {"type": sampler}
     return scene(floor(), sphere((0, 0, 0), 0.8, diffuse(0.8, 0.5, 0.3)),
-                 point_light((1, 3, 2)),
-                 sensor=camera(origin=(0, 1, 5), size=size, crop={"pixel_format": "rgba"}))
+                 point_light((1, 3, 2)), sensor=sensor)
 
 
 # ----------------------------------------------------------------- samples
@@ -75,6 +79,86 @@ def test_pairs_and_seeds_give_uncorrelated_uniform_points():
 
 
 # ------------------------------------------------------------- the render
+
+@pytest.mark.parametrize("side, paths", [(4, 16), (4, 64), (8, 32), (3, 12)])
+def test_the_camera_samples_of_a_pixel_tile_one_sequence_with_their_paths(side, paths):
+    """The keys of a pixel's side x side grid take distinct slots, and
+    their windows (for ``paths`` paths per pixel) tile the first ``paths``
+    samples of one sequence, whatever the shift: the pixel traces what it
+    was given (32 paths among 64 samples are 32, not one each), weighed so
+    that each sample's count over the shift has the mean it asked for."""
+    share = side * side
+    sub = dr.arange(mi.UInt32, share)
+    offsets = mi.Point2f((mi.Float(sub % side) + 0.5) / side, (mi.Float(sub // side) + 0.5) / side)
+    pixels = [(0, 0), (5, 3), (1023, 7)]
+    positions = mi.Point2f(dr.repeat(mi.Float([x for x, _ in pixels]), share) + dr.tile(offsets.x, 3),
+                           dr.repeat(mi.Float([y for _, y in pixels]), share) + dr.tile(offsets.y, 3))
+    keys = pixel_keys(positions, share, width=2048)
+    assert len(set(np.array(keys).tolist())) == 3 * share
+    wanted = dr.full(mi.Float, paths / share, 3 * share)
+    for salt in (1, 77, 0xC0FFEE):
+        seeds, first, count, weight = (np.array(v) for v in
+                                       indirect.path_window(wanted, keys, salt))
+        for pixel in range(3):
+            block = slice(pixel * share, (pixel + 1) * share)
+            assert len(set(seeds[block].tolist())) == 1
+            windows = sorted(i for f, c in zip(first[block], count[block]) for i in range(f, f + c))
+            assert windows == list(range(paths))
+        expected = 1 / (count if paths >= share else np.full(count.shape, paths / share))
+        np.testing.assert_allclose(weight[count > 0], expected[count > 0])
+    # Over the shift, each sample's count has its mean.
+    means = np.mean([np.array(indirect.path_window(wanted, keys, salt)[2])
+                     for salt in range(4000)], axis=0)
+    np.testing.assert_allclose(means, paths / share, atol=0.05)
+
+
+def test_other_keys_gather_on_their_own_with_at_least_one_path():
+    """A key that is not a camera sample's (a ray of ``trace_rays``, a
+    delta child's) has a sequence of its own from sample 0 and one path at
+    least, however dim the tree's throughput to it."""
+    keys = dr.arange(mi.UInt32, 1000)
+    seeds, first, count, weight = (np.array(v) for v in indirect.path_window(
+        dr.full(mi.Float, 0.3, 1000), keys, 5))
+    assert len(set(seeds.tolist())) == 1000
+    assert (first == 0).all() and (count == 1).all() and (weight == 1).all()
+    _, _, count, weight = (np.array(v) for v in indirect.path_window(
+        dr.full(mi.Float, 2.5, 1000), keys, 5))
+    assert set(count.tolist()) == {2, 3} and abs(count.mean() - 2.5) < 0.1
+    np.testing.assert_allclose(weight, 1 / count)
+
+
+def test_a_pixel_with_one_path_per_camera_sample_is_as_good_as_a_stratified_path_pixel():
+    """16 camera samples of a grid with one path each: the pixel's paths
+    are one stratified set, so its relMSE against a converged ``path``
+    (4096 spp) is no worse than that of ``path`` with 16 samples of the
+    multi-jittered sampler (a quarter more at most: the grid and the
+    jitter do not place camera samples alike); paths drawn from a sequence
+    per camera sample had more than twice that error. Half a path per
+    camera sample traces half the paths and keeps the mean."""
+    loaded = mi.load_dict(lit_ball())
+    depth = {"max_depth": 6}
+    reference = np.mean([np.array(mi.render(loaded, integrator=mi.load_dict({"type": "path", **depth}),
+                                            spp=1024, seed=100 + s))[..., :3]
+                         for s in range(4)], axis=0)
+    jittered = mi.load_dict(lit_ball(sampler="multijitter"))
+    path_error = np.mean([rel_mse(np.array(mi.render(
+        jittered, integrator=mi.load_dict({"type": "path", **depth}), spp=16, seed=s)), reference)
+        for s in range(4)])
+    whitted = mi.load_dict({"type": "whitted", "aa": "grid", "aa_samples": 4,
+                            "indirect_samples": 16, **depth})
+    images = [np.array(mi.render(loaded, integrator=whitted, seed=s)) for s in range(4)]
+    whitted_error = np.mean([rel_mse(image, reference) for image in images])
+    assert whitted_error < 1.25 * path_error, (whitted_error, path_error)
+    full_rays = whitted.last_stats["indirect"]
+    half = mi.load_dict({"type": "whitted", "aa": "grid", "aa_samples": 4,
+                         "indirect_samples": 8, **depth})
+    halves = np.stack([np.array(mi.render(loaded, integrator=half, seed=s))[..., :3]
+                       for s in range(8)])
+    assert half.last_stats["indirect"] == pytest.approx(full_rays / 2, rel=0.1)
+    error = halves.mean(axis=(1, 2, 3)).std(ddof=1) / np.sqrt(len(halves))
+    assert abs(halves.mean() - reference.mean()) < 4 * error + 1e-3 * reference.mean()
+
+
 
 def test_gathering_converges_to_path_on_a_lit_ball():
     """The image mean within a few standard errors of path's (4096 spp),

@@ -3,11 +3,14 @@ its camera samples for the anti-aliasing patterns."""
 
 from __future__ import annotations
 
+import math
+
 import drjit as dr
 import mitsuba as mi
 
 from ..errors import ParameterError
 from ..jit import in_launches
+from .indirect import camera_key
 from .settings import PLUGIN_NAME
 
 
@@ -41,6 +44,7 @@ class CameraShader:
             paths = None
             if self.indirect_samples:
                 paths = dr.full(mi.Float, self.indirect_samples / share, dr.width(keys))
+                keys = pixel_keys(positions, share, self.sensor.film().crop_size()[0])
             radiance, alpha, *gathered = self.trace(positions, keys, lens, paths)
             if not gathered:
                 return radiance, alpha
@@ -82,6 +86,32 @@ class CameraShader:
     def _report(self, done: int, total: int) -> None:
         if self.progress is not None:
             self.progress(done, total)
+
+
+def pixel_keys(positions: mi.Point2f, share: int, width: int) -> mi.UInt32:
+    """Keys of camera samples that gather indirect light
+    (:func:`.indirect.camera_key`): their pixel in a crop window ``width``
+    wide, and a slot that tells apart the ``share`` samples per pixel of a
+    pattern by their place in the pixel. A pattern of n x n cells (a grid,
+    a level of the adaptive split, a Hammersley net of 4^k points) numbers
+    its cells, in Morton order where n is a power of two, so that the four
+    children of an adaptive cell take the slots, and with them the paths,
+    of their parent; any other pattern numbers ``share`` columns."""
+    pixel_x, pixel_y = dr.floor(positions.x), dr.floor(positions.y)
+    within_x, within_y = positions.x - pixel_x, positions.y - pixel_y
+    pixel = mi.UInt32(pixel_y) * width + mi.UInt32(pixel_x)
+    side = math.isqrt(share)
+    if side * side != share:
+        return camera_key(pixel, mi.UInt32(dr.minimum(within_x * share, share - 1)))
+    cell_x = mi.UInt32(dr.minimum(within_x * side, side - 1))
+    cell_y = mi.UInt32(dr.minimum(within_y * side, side - 1))
+    if side & (side - 1):
+        return camera_key(pixel, cell_y * side + cell_x)
+    slot = mi.UInt32(0)
+    for bit in range(side.bit_length() - 1):
+        slot |= ((cell_x >> bit) & 1) << (2 * bit)
+        slot |= ((cell_y >> bit) & 1) << (2 * bit + 1)
+    return camera_key(pixel, slot)
 
 
 def sensor_of(scene: mi.Scene, sensor) -> mi.Sensor:

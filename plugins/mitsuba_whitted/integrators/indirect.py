@@ -26,13 +26,22 @@ that light with N paths:
   pixel's ``indirect_samples`` shared among its camera samples) times the
   throughput of the tree to the hit: a wall seen in a 4% Fresnel
   reflection adds 4% of its light to the pixel, and its noise matters that
-  much less, so it gathers with that share of the paths. A fractional
-  count is rounded up or down at random, keeping its mean, and is at least
-  one, so that every hit's indirect light is estimated without bias. (A
-  roulette on the gathering, one path with the probability asked for and
-  weighted by its inverse, keeps the cost to the count but gave 2.3 times
-  the relMSE x rays on ``cylinder.xml`` with contrast anti-aliasing: its
-  weights make bright outliers where the refined edges are.)
+  much less, so it gathers with that share of the paths.
+- The camera samples of a pixel draw their paths from one sequence, each
+  its own window of it (:func:`path_window`, keyed by
+  :func:`camera_key`): the pixel's first directions, and its directions at
+  every later vertex, are one stratified set, as a sampler's samples of a
+  pixel are, where a sequence per camera sample stratified only each
+  sample's few paths, and a sample given one path drew an unstratified
+  one. The windows are rounded so that the pixel traces the paths it was
+  given: a camera sample given half a path traces one every other sample,
+  weighed by 2. A delta child's hit, whose key is a hash, has a sequence
+  of its own and at least one path, the count rounded up or down at
+  random to keep its mean. (A roulette there, one path with the
+  probability asked for and weighted by its inverse, keeps the cost to the
+  count but gave 2.3 times the relMSE x rays on ``cylinder.xml`` with
+  contrast anti-aliasing: its weights make bright outliers where the
+  refined edges are.)
 - Russian roulette ends paths that carry little from their fourth vertex
   on, by the product of the tree's throughput and the path's, so a hit
   seen in a dim reflection spends little on long paths too.
@@ -70,11 +79,56 @@ STRAIGHT_COSINE = 1.0 - 1e-5
 _ROUNDING_SALT = 0x5BD1E995
 
 
-def rounded_paths(wanted: mi.Float, key: mi.UInt32) -> mi.UInt32:
-    """``wanted`` paths (per lane) as a whole count, rounded up or down at
-    random (by a hash of ``key``) so that the mean is kept, and at least one."""
-    rounding = to_unit(mix(key ^ _ROUNDING_SALT))
-    return dr.maximum(mi.UInt32(dr.floor(wanted + rounding)), 1)
+#: The top bits of a camera sample's key (:func:`camera_key`): its pixel
+#: is below them, above ``SLOT_BITS``, and its slot among the pixel's
+#: samples below that. Three bits, so that a delta child's key (a hash)
+#: passes for a camera key once in eight.
+CAMERA_TAG, _TAG_MASK = 0b101 << 29, 0b111 << 29
+#: Bits of a camera key for the sample's slot in its pixel.
+SLOT_BITS = 9
+_SLOT_MASK = (1 << SLOT_BITS) - 1
+_PIXEL_MASK = (1 << (29 - SLOT_BITS)) - 1
+
+
+def camera_key(pixel: mi.UInt32, slot: mi.UInt32) -> mi.UInt32:
+    """The key of a camera sample in ``pixel`` that takes the ``slot``-th
+    share of the pixel's paths. The paths of every camera sample of a pixel
+    are then points of one scrambled sequence, the ``slot``-th window of it
+    (:func:`path_window`): over the pixel they form one stratified set, as
+    a sampler's samples of a pixel do, where sequences of their own per
+    camera sample would be stratified only within each sample. (Pixels
+    2^20 apart and slots 2^9 apart share windows, which correlates their
+    paths but keeps each estimate's mean.)"""
+    return (mi.UInt32(CAMERA_TAG) | ((pixel & _PIXEL_MASK) << SLOT_BITS)
+            | (slot & _SLOT_MASK))
+
+
+def path_window(wanted: mi.Float, key: mi.UInt32, salt: int) -> tuple:
+    """The sequence's seed, the first sample and the count of the paths of a
+    hit that wants ``wanted`` (per lane, a real number) and is keyed
+    ``key``, and the weight of their sum.
+
+    A camera key's hit takes the window ``[slot w + r, (slot + 1) w + r)``
+    of its pixel's sequence, rounded down, with ``w`` = ``wanted`` and one
+    shift ``r`` per pixel and render seed, uniform in [0, 1): the windows of
+    a pixel's samples tile its sequence from its start, so the pixel traces
+    the paths it was given, and each count has the mean ``w`` over the
+    shift. Where ``w`` >= 1 the count is at least 1 and the sum is weighed
+    by the count; below 1 a window holds one path or none, weighed by 1 / w
+    (a pixel's samples take turns, in slot order). Any other key (a delta
+    child's, or a ray of ``trace_rays``) takes the window of slot 0 of a
+    sequence of its own, of at least one path."""
+    camera = (key & _TAG_MASK) == CAMERA_TAG
+    seed = mix(dr.select(camera, key >> SLOT_BITS, key) ^ salt)
+    slot = mi.Float(dr.select(camera, key & _SLOT_MASK, 0))
+    shift = to_unit(mix(seed ^ _ROUNDING_SALT))
+    first = mi.UInt32(dr.floor(slot * wanted + shift))
+    count = mi.UInt32(dr.floor((slot + 1) * wanted + shift)) - first
+    # Elsewhere at least one path: a delta child's hit is on its own, and
+    # one path or none, weighed by 1 / w, made outliers where w is small.
+    count[~camera] = dr.maximum(count, 1)
+    weight = dr.select(camera & (wanted < 1), dr.rcp(wanted), dr.rcp(mi.Float(dr.maximum(count, 1))))
+    return seed, first, count, dr.select(count > 0, weight, 0)
 
 
 @dataclass
@@ -120,23 +174,23 @@ class IndirectLight(ReadsScene):
         """Indirect radiance leaving ``si`` towards ``-ray`` (not yet times
         ``throughput``), and the rays cast. The radiance is the mean of
         ``paths`` paths (per lane, a real number; ``None``: ``samples``)
-        times the tree's ``throughput`` to the hit, rounded
-        (:func:`rounded_paths`). ``segments``: per lane, how many segments
+        times the tree's ``throughput`` to the hit, as
+        :func:`path_window` rounds it. ``segments``: per lane, how many segments
         a path from ``si`` may have (``max_depth`` less those of the camera
         path to ``si``)."""
-        count = rounded_paths(
+        seed, sample, count, weight = path_window(
             mi.Float(self.samples if paths is None else paths)
-            * dr.minimum(dr.max(throughput), 1), key)
-        sequence = PaddedSobol(mix(key ^ self.salt))
+            * dr.minimum(dr.max(throughput), 1), key, self.salt)
+        end = sample + count
+        sequence = PaddedSobol(seed)
         total = mi.Color3f(0)
         rays = IndirectRays(mi.UInt32(0), mi.UInt32(0))
-        sample = mi.UInt32(0)
         vertex = mi.UInt32(0)
         here = dr.zeros(mi.SurfaceInteraction3f)
         beta = mi.Color3f(1)
         eta = mi.Float(1)
         straight = mi.Bool(True)
-        active = mi.Bool(active) & (segments >= 2)
+        active = mi.Bool(active) & (segments >= 2) & (count > 0)
         while active:
             # A lane at vertex 0 starts its next path at the tree's hit.
             start = vertex == 0
@@ -168,8 +222,8 @@ class IndirectLight(ReadsScene):
             here = dr.select(go, hit, here)
             vertex = dr.select(go, vertex + 1, 0)
             sample[~go] = sample + 1
-            active &= go | (sample < count)
-        return total / mi.Float(count), rays
+            active &= go | (sample < end)
+        return total * weight, rays
 
     def _light_samples(self, here, sequence, sample, first_pair, active) -> list:
         """``(ds, radiance over density)`` towards each light from ``here``:
