@@ -15,13 +15,13 @@ the reference is ``path`` alone, cached under the same key as ever.
 
 The photon part is the mean of :attr:`PhotonSettings.runs` independent runs
 (seeds of their own), each of ``passes`` passes of ``photons`` photons
-whose gather radius shrinks from a pixel's footprint. The spread of the
-runs gives its noise, added to ``path``'s. Its bias is not in that noise:
-every pass blurs the light over a disc of its radius, from a pixel's
-footprint in the first pass down to the last pass's radius (about
-``passes ** -1/6`` of it), so a caustic's sharp edge is softened by up to
-a pixel, about the blur of the box filter that ``path``'s pixels already
-have. It falls as the passes grow, slowly.
+whose gather radius shrinks from the integrator's first radius (a fraction
+of a pixel's footprint). The spread of the runs gives its noise, added to
+``path``'s. Its bias is not in that noise: every pass blurs the light over
+a disc of its radius, from the first radius down to the last pass's
+(about ``passes ** -1/6`` of it), so a caustic's sharp edge is softened
+by less than a pixel, below the blur of the box filter that ``path``'s
+pixels already have. It falls as the passes grow, slowly.
 """
 
 from __future__ import annotations
