@@ -138,8 +138,8 @@ class WhittedIntegrator(mi.SamplingIntegrator):
        - |exposed|
      * - photon_radius
        - |float|
-       - Gather radius of the first pass, in scene units; 0: the width of a
-         pixel at the median distance of the camera's first hits.
+       - Gather radius of the first pass, in scene units; 0: half the width
+         of a pixel at the median distance of the camera's first hits.
          (Default: 0)
        - |exposed|
 

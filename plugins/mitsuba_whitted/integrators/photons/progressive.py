@@ -17,8 +17,8 @@ shrinks with r_i^2 while its noise grows only as 1 / r_i^2, so with alpha
 in (0, 1) both the bias and the variance of the mean vanish as passes grow
 (for alpha 2/3, the mean squared error falls as passes^(-2/3)).
 
-The first radius, unless the scene gives ``photon_radius``, is the width
-of a pixel at the median distance of the camera's first hits.
+The first radius, unless the scene gives ``photon_radius``, is half the
+width of a pixel at the median distance of the camera's first hits.
 """
 
 from __future__ import annotations
