@@ -260,8 +260,9 @@ def photon_figures(reference: Reference) -> PhotonFigures | None:
 def reference_sentence(figures: ReferenceFigures) -> str:
     """Which the reference is, and path's own error against it."""
     if figures.photons is None:
-        return ("Reference: Mitsuba's `path` alone: the scene has no delta light seen "
-                "through a delta or null surface, where `path` misses light.")
+        return ("Reference: Mitsuba's `path` alone: the scene does not have both a point, "
+                "spot or directional light and a surface with a delta or null lobe, which "
+                "together make light that `path` misses.")
     part = figures.photons
     return (f"Reference: {figures.name}: `path` misses the light of delta lights through "
             "delta or null surfaces here (caustics, and the light through index-1 or null "
@@ -328,7 +329,8 @@ def _write_report(out_dir, scene_path, defines, reference, sweep, converged, res
         f"(max_depth {path_settings()['max_depth']}), "
         f"{reference.path_alone().spp} spp in {REFERENCE_PASSES} independent passes, {origin} "
         f"({reference.seconds:.1f} s to render in all); the reference's own noise, estimated "
-        f"from the spread of the passes (and of the photon runs), is a relMSE of "
+        f"from the spread of the passes{' and of the photon runs' if reference.photons else ''}"
+        ", is a relMSE of "
         f"{number(results.reference.noise_rel_mse)}. "
         f"{timing_sentence(results.timing.rounds)} Machine: {machine()}.")
     report.paragraph(summary)
