@@ -31,8 +31,9 @@ from .render_progress import RenderProgress
 from .scene_checks import check_emitters, check_placements
 from .scene_needs import SceneNeeds, analyse
 from .scene_ref import identity, plain_values
-from .settings import (AA_MODES, PLUGIN_NAME, SETTINGS, SHADOW_MODES, UNBOUNDED_DEPTH, Exposed,
-                       read_settings, require_supported_variant, seed_value, validate)
+from .settings import (AA_MODES, MAX_PHOTON_PASSES, PLUGIN_NAME, SETTINGS, SHADOW_MODES,
+                       UNBOUNDED_DEPTH, Exposed, read_settings, require_supported_variant,
+                       seed_value, validate)
 from .shading import MAX_TREE_RAYS, TreeSettings
 from .tracers import RayBatch, build_tracer
 from .tracers.tree_replay import ReplayRefused
@@ -298,33 +299,48 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         return tracer
 
     @one_at_a_time
-    def photon_light(self, scene: mi.Scene, sensor=0, seed=0, complement: str = "whitted"):
+    def photon_light(self, scene: mi.Scene, sensor=0, seed=0, complement: str = "whitted",
+                     passes: int = None, on_pass=None):
         """The photons' light alone, per pixel of the sensor's crop window
         (a ``mi.TensorXf`` of height x width x 3), with this integrator's
         ``photons``, ``photon_passes`` and ``photon_radius``.
         ``complement``: ``"whitted"``, the light this integrator's render
         adds with them; ``"path"``, the light a path tracer misses (point,
         spot and directional lights through any delta or null surface onto
-        a smooth one), which completes a ``path`` reference."""
+        a smooth one), which completes a ``path`` reference.
+        ``passes``: how many passes (``photon_passes`` if not given); more
+        passes go on along the same shrinking radius, so that the mean of
+        the first k is the same however many follow. ``on_pass(k, light)``,
+        if given, hears after each pass k of the mean of the first k (a
+        tensor like the one returned); what it raises ends the passes
+        there and leaves this call (a live view stops them so)."""
         check_choice(complement, ("whitted", "path"), PLUGIN_NAME, "complement")
         check(self.photons > 0, PLUGIN_NAME, "photons", "must be > 0 for the photons' light")
+        count = self.photon_passes if passes is None else passes
+        check(isinstance(count, int) and 1 <= count <= MAX_PHOTON_PASSES, PLUGIN_NAME,
+              "passes", f"must be a whole number between 1 and {MAX_PHOTON_PASSES} (got "
+              f"{count!r})")
         sensor = sensor_of(scene, sensor)
         settle_sampler(sensor)
         check_emitters(scene)
-        light, self._state.stats = self._photon_light(scene, sensor, seed_value(seed),
-                                                      complement=complement)
         width, height = sensor.film().crop_size()
-        return mi.TensorXf(dr.ravel(light), (height, width, 3))
+        shape = (height, width, 3)
+        heard = None if on_pass is None else (
+            lambda k, mean: on_pass(k, mi.TensorXf(dr.ravel(mean), shape)))
+        light, self._state.stats = self._photon_light(scene, sensor, seed_value(seed), heard,
+                                                      complement=complement, passes=count)
+        return mi.TensorXf(dr.ravel(light), shape)
 
     def _photon_light(self, scene: mi.Scene, sensor: mi.Sensor, seed: int, on_pass=None,
-                      complement: str = "whitted"):
+                      complement: str = "whitted", passes: int = None):
         """The photons' light of every pixel of the crop window
         (:mod:`.photons.progressive`), and what the passes did."""
         tracer = self._photon_tracer_for(scene)
         kinds, delta_only = ((PATH_COMPLEMENT, True) if complement == "path"
                              else kinds_for(self.indirect_samples))
         depth = UNBOUNDED_DEPTH if self.max_depth == -1 else self.max_depth
-        passes = ProgressivePhotons(self.photons, self.photon_passes, self.photon_radius,
+        passes = ProgressivePhotons(self.photons, passes or self.photon_passes,
+                                    self.photon_radius,
                                     kinds, delta_only, depth)
         shader = CameraShader(tracer, sensor)
         jitter = self.aa != "none"
@@ -496,14 +512,17 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         return sensor, seed, replay, keys, read
 
     @one_at_a_time
-    def render_rows(self, scene: mi.Scene, take, sensor=0, seed=0, held_bytes: int = 0) -> None:
+    def render_rows(self, scene: mi.Scene, take, sensor=0, seed=0, held_bytes: int = 0,
+                    photons: bool = True) -> None:
         """Render without a film of the whole image: ``take(first_row,
         rows)`` receives the image band by band, top to bottom, as float32
         NumPy arrays (rows, width, channels) holding what the film's
         ``develop`` would (in its pixel format: RGB, luminance or XYZ, with
         or without alpha), so that images
         larger than memory reach a file one band at a time. ``held_bytes``:
-        what ``take`` keeps meanwhile, for the memory check."""
+        what ``take`` keeps meanwhile, for the memory check. ``photons``
+        False leaves the photons' light out (:meth:`photon_light` gives it
+        apart, pass by pass: a live view shows the rest first)."""
         sensor = sensor_of(scene, sensor)
         seed = seed_value(seed)
         channels = film_channels(sensor.film())
@@ -515,18 +534,20 @@ class WhittedIntegrator(mi.SamplingIntegrator):
             take(band.first_row, developed(rows.reshape(band.rows, band.width, channels - 1),
                                            pixel_format))
 
-        self.render_bands(scene, sensor, seed, take_band, film_entries=0, held_bytes=held_bytes)
+        self.render_bands(scene, sensor, seed, take_band, film_entries=0, held_bytes=held_bytes,
+                          photons=photons)
 
     def render_bands(self, scene: mi.Scene, sensor: mi.Sensor, seed, take,
                      film_entries: int, prepare=None, held_bytes: int = 0,
-                     shader=None, derivative: bool = False) -> None:
+                     shader=None, derivative: bool = False, photons: bool = True) -> None:
         """Trace the crop window band by band (:mod:`.render_plan`) and hand
         each band's radiance and alpha to ``take(band, radiance, alpha)``.
         ``film_entries``: the floats the caller's film holds; ``prepare()``
         runs once the render is known to fit, before anything large is
         allocated; ``shader(tracer, sensor, progress)`` makes what traces the
         camera samples (a :class:`CameraShader` if not given); a
-        ``derivative``'s pass leaves ``last_stats`` as the render left it."""
+        ``derivative``'s pass leaves ``last_stats`` as the render left it;
+        ``photons`` False leaves the photons' light out."""
         check_emitters(scene)
         aperture = has_aperture(sensor)
         if self.aa == "none" and aperture:
@@ -540,7 +561,7 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         plan = plan_render(self._demand(sensor.film(), tracer, film_entries, held_bytes),
                            self.limits)
         photon_light, photon_stats = None, {}
-        if self.photons and not derivative:
+        if self.photons and photons and not derivative:
             photon_light, photon_stats = self._photon_light(scene, sensor, seed)
         if prepare is not None:
             prepare()

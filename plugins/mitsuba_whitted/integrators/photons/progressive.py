@@ -116,7 +116,10 @@ class ProgressivePhotons:
                jitter: bool, lens: bool, on_pass=None) -> mi.Color3f:
         """The mean photon light per pixel; ``jitter``: whether each pass
         takes a new point of each pixel, ``lens`` of the aperture;
-        ``on_pass(i, mean)``, if given, hears of each pass's running mean."""
+        ``on_pass(i, mean)``, if given, hears of each pass's running mean;
+        what it raises ends the passes there. Pass i's radius and photons
+        depend on i alone, so the mean of the first k passes is the same
+        whatever ``passes`` is, as long as it is at least k."""
         lookup = tracer.shader.photons
         shares = plan_emission(scene, self.photons, self.delta_only,
                                UNIFORM_SHARE if self.kinds.smooth_bounces else 0.0)
@@ -132,21 +135,25 @@ class ProgressivePhotons:
                  "photon_passes": self.passes, "photon_radius_first": first,
                  "photon_radius_last": schedule[-1] if schedule else first}
         base_inputs = tracer.kernel_inputs
-        for i, radius in enumerate(schedule):
-            photons, emitted, segments = photon_tracer.trace(shares, pass_salt(seed, i))
-            lookup.grid = PhotonGrid(photons, radius)
-            tracer.kernel_inputs = tuple(base_inputs) + lookup.arrays()
-            positions, keys, lens_points = pass_samples(width, height, i, seed, jitter, lens)
-            radiance, _ = shade(positions, keys, lens_points)
-            total = total + radiance
-            dr.eval(total)
-            stats["photons_emitted"] += emitted
-            stats["photons_stored"] += len(photons)
-            stats["photon_segments"] += segments
-            if on_pass is not None:
-                on_pass(i + 1, total / (i + 1))
-        tracer.kernel_inputs = base_inputs
-        lookup.grid = PhotonGrid(Photons.empty(), 1.0)
+        try:
+            for i, radius in enumerate(schedule):
+                photons, emitted, segments = photon_tracer.trace(shares, pass_salt(seed, i))
+                lookup.grid = PhotonGrid(photons, radius)
+                tracer.kernel_inputs = tuple(base_inputs) + lookup.arrays()
+                positions, keys, lens_points = pass_samples(width, height, i, seed, jitter, lens)
+                radiance, _ = shade(positions, keys, lens_points)
+                total = total + radiance
+                dr.eval(total)
+                stats["photons_emitted"] += emitted
+                stats["photons_stored"] += len(photons)
+                stats["photon_segments"] += segments
+                if on_pass is not None:
+                    on_pass(i + 1, total / (i + 1))
+        finally:
+            # Also where on_pass stops the passes by raising: the tracer
+            # is kept for the next render, which starts from its inputs.
+            tracer.kernel_inputs = base_inputs
+            lookup.grid = PhotonGrid(Photons.empty(), 1.0)
         self.stats = stats
         return total / max(self.passes, 1)
 
