@@ -16,10 +16,11 @@ import pytest
 from mitsuba_whitted.compare import (ReferenceCache, cache_key, cached_reference, flip_error,
                                      luminance, missing_energy_share, noise_rel_mse, rel_mse,
                                      rmse)
-from mitsuba_whitted.compare.converged import converged_renders
+from mitsuba_whitted.compare.converged import converged_renders, converges_to_reference
 from mitsuba_whitted.compare.levels import error_levels
 from mitsuba_whitted.compare.reference import render_reference
-from mitsuba_whitted.compare.sweep import indirect_change
+from mitsuba_whitted.compare.sweep import (PhotonRungs, _variants, indirect_change,
+                                           whitted_variants)
 from mitsuba_whitted.compare.report import number
 from mitsuba_whitted.compare.scene_report import (FOLDER_MARK, CompareError, CompareOptions,
                                                   check_report_folder, compare_scene)
@@ -27,6 +28,7 @@ from mitsuba_whitted.imageio import read_image
 from mitsuba_whitted.scene_digest import scene_digest
 
 from conftest import assert_finite, cli, one_line
+from validation import scenes
 from validation.scenes import REPORT_SCENE, glass_scene
 
 RNG = np.random.default_rng(363)
@@ -193,6 +195,44 @@ def test_indirect_light_on_paths_model_converges_to_the_reference(tmp_path):
     assert cache.misses == 3
 
 
+def _rungs(description: dict) -> set:
+    scene = mi.load_dict(description)
+    return {label for label in whitted_variants({}, False, PhotonRungs.of(scene))
+            if "photons" in label}
+
+
+def test_photon_rungs_only_where_the_scene_has_light_for_them():
+    """No smooth surface, no light the tree leaves out: no photon rungs.
+    Diffuse surfaces without a delta light through glass: the photons for
+    interreflection, not those for caustics. A glass ball under a point
+    light: both."""
+    mirror = {"type": "conductor", "material": "none"}
+    assert _rungs(scenes.scene(scenes.sphere((0, 0, 0), 1.0, mirror),
+                               scenes.point_light((0, 3, 3)))) == set()
+    diffuse_only = _rungs(scenes.scene(scenes.floor(), scenes.sphere((0, 0, 0), 1.0, mirror),
+                                       scenes.sky()))
+    assert diffuse_only == {label for label, *_ in _photon_labels(caustics=False)}
+    assert all(label.startswith("photons ") for label in diffuse_only)
+    both = _rungs(scenes.glass_ball_caustic(size=8))
+    assert both == {label for label, *_ in _photon_labels(caustics=True)}
+    assert any(label.startswith("indirect ") for label in both)
+
+
+def _photon_labels(caustics: bool) -> list:
+    return [(label, change) for label, change, _ in _variants({}, PhotonRungs(True, caustics))
+            if change.get("photons")]
+
+
+def test_photon_rungs_are_on_paths_model():
+    """Every photon rung is physical at path's depth, so that it converges
+    to the reference; those with indirect paths carry only the caustics."""
+    for label, change in _photon_labels(caustics=True):
+        assert converges_to_reference(change), label
+        assert change["photons"] > 0 and change["photon_passes"] >= 1, label
+        assert ("indirect_samples" in change) and (
+            (change["indirect_samples"] > 0) == label.startswith("indirect")), label
+
+
 # -------------------------------------------------------- compare --quick
 
 def test_compare_quick_writes_a_consistent_report(tmp_path):
@@ -214,7 +254,9 @@ def test_compare_quick_writes_a_consistent_report(tmp_path):
     assert_finite(reference)
     whitted = results["whitted"]
     assert set(whitted) == {"aa none", "aa grid 2x2", "aa adaptive 0.25",
-                            "indirect 4, grid 2x2", "indirect 16, grid 2x2"}
+                            "indirect 4, grid 2x2", "indirect 16, grid 2x2",
+                            "photons 10k x 4, grid 2x2",
+                            "indirect 16 + photons 10k x 4, grid 2x2"}
     assert set(results["path"]) == {"independent", "multijitter"}
     for rungs in results["path"].values():
         assert [rung["spp"] for rung in rungs] == [1, 2, 4, 8, 16]
@@ -238,7 +280,13 @@ def test_compare_quick_writes_a_consistent_report(tmp_path):
             assert point["verdict"][metric] in row
             there = point["path_at_equal_error"][metric]["seconds"]["median"]
             assert speedup["median"] == pytest.approx(there / point["seconds"]["median"])
-            if point["settings"].get("indirect_samples"):
+            if point["settings"].get("photons"):
+                # Photons on path's model converge to the whole light,
+                # which is the reference itself.
+                assert point["model_bias"][metric] == 0
+                assert point["sampling_error"][metric] == point["rel_mse" if metric == "relmse"
+                                                                else "flip"]
+            elif point["settings"].get("indirect_samples"):
                 # Path's model: it converges to path's part of the
                 # reference, which here lacks the photons' light (glass
                 # under point lights): its bias is path's floor, with the

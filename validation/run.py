@@ -228,8 +228,10 @@ def write_speed_section(report: MarkdownReport, settings: SpeedSettings,
     report.heading("3. Speed against error")
     report.paragraph(
         f"Each scene at {size} x {size}: Whitted's settings (anti-aliasing modes, thresholds, "
-        "depths, and the hybrid ladder: indirect light on path's model, 4 to 256 paths per "
-        "pixel) and `path` at 1, 2, 4, ... {options.path_max_spp} spp with each of its "
+        "depths, the hybrid ladder: indirect light on path's model, 4 to 256 paths per "
+        "pixel, and photons on path's model, alone or for the caustics beside indirect paths, "
+        "where the scene has light for them) and `path` at 1, 2, 4, ... "
+        f"{options.path_max_spp} spp with each of its "
         f"samplers ({', '.join(PATH_SAMPLERS)}), against a {options.reference_spp}-spp "
         "`path` reference, plus the light `path` misses from photons where a delta light "
         "reaches a smooth surface through a delta or null one (each scene names its "

@@ -19,9 +19,11 @@ ROOT = Path(__file__).resolve().parent.parent
 REPORT_SCENE = ROOT / "scenes" / "cosc363.xml"
 #: A closed box with glass, a mirror and a point light: mostly indirect light.
 GLASS_BOX = ROOT / "scenes" / "cases" / "glass_box.xml"
+#: :func:`glass_ball_caustic` as a scene file, for the speed section.
+GLASS_BALL = ROOT / "scenes" / "cases" / "glass_ball_caustic.xml"
 SPEED = [ROOT / "scenes" / "cosc363.xml", ROOT / "scenes" / "cases" / "glass_spheres.xml",
          ROOT / "scenes" / "cases" / "mirror_chain.xml", ROOT / "scenes" / "cases" / "cylinder.xml",
-         GLASS_BOX]
+         GLASS_BOX, GLASS_BALL]
 
 
 def camera(origin=(0, 0, 5), target=(0, 0, 0), up=(0, 1, 0), fov=40, size=24, crop=None,

@@ -12,8 +12,12 @@ too. Every setting that differs only in its anti-aliasing shares one
 converged render. A setting with indirect light whose model is path's
 (``indirect_samples`` above 0, physical shadows, no ambient term, path's
 ``max_depth``) converges to path's image, as the equivalence tests show:
-its converged render is the reference itself, and its model bias 0. Renders are cached like the references, under a key of
-the scene, the model's settings and the package's code.
+its converged render is path's reference, and its model bias 0. A
+setting with photons on path's model converges to the whole light, which
+the full reference holds (path's, plus the photons' part where path misses
+light): its converged render is that reference. Renders are cached like
+the references, under a key of the scene, the model's settings and the
+package's code.
 """
 
 from __future__ import annotations
@@ -58,6 +62,14 @@ def converges_to_path(settings: dict) -> bool:
             and not has_ambient(settings) and settings.get("max_depth", 10) == PATH_DEPTH)
 
 
+def converges_to_reference(settings: dict) -> bool:
+    """Whether Whitted with ``settings`` converges to the full reference:
+    photons (with or without indirect paths) on path's model."""
+    return (settings.get("photons", 0) > 0
+            and settings.get("shadows", "physical") == "physical"
+            and not has_ambient(settings) and settings.get("max_depth", 10) == PATH_DEPTH)
+
+
 def has_ambient(settings: dict) -> bool:
     """Whether Whitted's ``settings`` add an ambient term."""
     return any(settings.get("ambient", {}).get("value", [0]))
@@ -76,20 +88,25 @@ class Converged:
 
 def converged_renders(scene: mi.Scene, scene_digest: str, whitted: dict,
                       cache: ReferenceCache, side: int = CONVERGED_SIDE,
-                      reference: Reference | None = None) -> dict:
+                      reference: Reference | None = None,
+                      full: Reference | None = None) -> dict:
     """The converged render of each labelled Whitted setting of
     ``whitted`` (settings dictionaries without ``type``), by label, one
     render for each distinct model; ``scene_digest`` names the scene in
     the cache. Settings that converge to path's image share ``reference``
-    where it is given."""
+    where it is given, and those with photons on path's model ``full``,
+    the reference with every light."""
     renders, by_label = {}, {}
     for label, settings in whitted.items():
-        path_model = reference is not None and converges_to_path(settings)
-        target = path_settings() if path_model else converged_settings(settings, side)
+        target, image_of = converged_settings(settings, side), None
+        if full is not None and converges_to_reference(settings):
+            target, image_of = {**path_settings(), "light": "every"}, full
+        elif reference is not None and converges_to_path(settings):
+            target, image_of = path_settings(), reference
         model = json.dumps(target, sort_keys=True, default=str)
         if model not in renders:
-            renders[model] = (Converged(target, reference.image, reference.seconds,
-                                        reference.cached) if path_model
+            renders[model] = (Converged(target, image_of.image, image_of.seconds,
+                                        image_of.cached) if image_of is not None
                               else _cached_render(scene, scene_digest, target, cache))
         by_label[label] = renders[model]
     return by_label

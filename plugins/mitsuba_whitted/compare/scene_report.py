@@ -42,7 +42,7 @@ from .results import (CompareResults, ConvergedFigures, ConvergedRender, Crossin
                       ReferenceFigures,
                       TimingFigures, WhittedFigures, gain_fields)
 from .report import Curve, MarkdownReport, Marker, Panel, number, shared_vmax, worst_window
-from .sweep import (Sweep, SweepPoint, path_ladder, run_sweep, sampler_sensors,
+from .sweep import (PhotonRungs, Sweep, SweepPoint, path_ladder, run_sweep, sampler_sensors,
                     scene_whitted_settings, whitted_settings, whitted_variants)
 from .viewer import ViewerImage, ViewerTable, write_viewer
 
@@ -173,16 +173,17 @@ def measure_scene(source: SceneSource, options: CompareOptions, cache_dir: str |
     reference = full_reference(cache, scene_without_integrator_digest(source.path,
                                                                       source.defines),
                                scene, path, options.photon_settings)
-    variants = whitted_variants(scene_whitted_settings(scene), options.quick)
+    variants = whitted_variants(scene_whitted_settings(scene), options.quick,
+                                PhotonRungs.of(scene))
     sweep = run_sweep(scene, reference,
                       whitted_settings(variants) + path_ladder(options.path_max_spp),
                       sampler_sensors(source.path, source.defines), options.rounds, progress)
     _finish(progress)
     analysis = analyse(sweep)
     # Whitted's settings on path's model converge to path's image, not to
-    # the light path misses.
+    # the light path misses; with photons, to all of it.
     converged = converged_renders(scene, source.digest, variants, cache, options.converged_side,
-                                  reference.path_alone())
+                                  reference.path_alone(), reference)
     results = _results(source.path.name, reference, sweep, analysis, converged, options,
                        scene.sensors()[0].film().rfilter().class_name())
     return SceneComparison(source.path, source.defines, reference, sweep, analysis, converged,
@@ -273,8 +274,7 @@ def reference_sentence(figures: ReferenceFigures) -> str:
             f"gather radius {number(part.radius_first)} in the first pass to "
             f"{number(part.radius_last)} in the last, scene units; its noise, from the "
             f"spread of the runs, a relMSE of {number(part.noise_rel_mse)}, and its blur "
-            "over the radius not counted in it). What a diffuse bounce sees of that light is "
-            "still missing. *Path's floor*: `path` alone against this reference, less the "
+            "over the radius not counted in it). *Path's floor*: `path` alone against this reference, less the "
             f"photon part's noise, a relMSE of {number(figures.path_floor_rel_mse)}: no "
             "number of `path` samples gets below it.")
 

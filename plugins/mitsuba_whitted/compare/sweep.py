@@ -35,6 +35,7 @@ from ..overrides import load_with
 from .intervals import SEED, Draws, tile_pixels, tile_sums
 from .metrics import TILE_SIDES, error_maps, rmse
 from .converged import has_ambient
+from .photon_reference import needs_photons
 from .reference import PATH_DEPTH, Reference, path_settings, rgb_pixels
 
 #: Path's samplers, each rendering a ladder of its own.
@@ -70,9 +71,10 @@ def scene_whitted_settings(scene: mi.Scene) -> dict:
 CONTRAST_AA = {"aa": "contrast", "aa_threshold": 0.02, "aa_budget": 256}
 
 
-def _variants(base: dict) -> list[tuple[str, dict, bool]]:
+def _variants(base: dict, light: "PhotonRungs" = None) -> list[tuple[str, dict, bool]]:
     """Every labelled change of ``base`` that a sweep measures, and whether
-    ``--quick`` keeps it; a new Whitted setting is added here."""
+    ``--quick`` keeps it; a new Whitted setting is added here. ``light``
+    says which photon rungs the scene has light for (none if not given)."""
     # Three adaptive levels resolve edges to 1/16 pixel; deeper levels on a
     # low threshold would mostly spend the sample budget on noise.
     depth = min(base.get("aa_max_depth", 3), 3)
@@ -96,6 +98,15 @@ def _variants(base: dict) -> list[tuple[str, dict, bool]]:
     variants += [(f"indirect {side * side}, contrast {side}x{side}",
                   indirect_change(side * side, {**CONTRAST_AA, "aa_samples": side}), False)
                  for side in CONTRAST_SIDES]
+    light = light or PhotonRungs(False, False)
+    if light.interreflection:
+        variants += [(f"photons {_count(photons)} x {passes}, {aa_label}",
+                      photon_change(photons, passes, 0, anti_aliasing), in_quick)
+                     for photons, passes, aa_label, anti_aliasing, in_quick in PHOTON_RUNGS]
+    if light.caustics:
+        variants += [(f"indirect {paths} + photons {_count(photons)} x {passes}, grid 2x2",
+                      photon_change(photons, passes, paths, GRID_2X2), in_quick)
+                     for paths, photons, passes, in_quick in CAUSTIC_RUNGS]
     return variants if base else variants[1:]
 
 
@@ -112,18 +123,74 @@ INDIRECT_PATHS, QUICK_PATHS = (4, 16, 64, 256), (4, 16)
 CONTRAST_SIDES = (4, 8)
 
 
+#: The photon ladder with no indirect paths, where the photons carry all
+#: the light the tree leaves out: (photons per pass, passes, anti-aliasing's
+#: label and settings, whether ``--quick`` keeps it). The budget grows
+#: fourfold from rung to rung, first in passes, which shrink the gather
+#: radius and with it the blur that more photons in one pass cannot, then in
+#: photons per pass, which lowers the noise of each.
+PHOTON_RUNGS = (
+    (10_000, 4, "grid 2x2", GRID_2X2, True),
+    (10_000, 16, "grid 2x2", GRID_2X2, False),
+    (40_000, 16, "grid 2x2", GRID_2X2, False),
+    (40_000, 16, "contrast 4x4", {**CONTRAST_AA, "aa_samples": 4}, False),
+)
+#: Indirect paths with photons for the caustics alone, the light no path
+#: from the camera finds: (paths per pixel, photons per pass, passes,
+#: whether ``--quick`` keeps it). The paths carry the diffuse light, so the
+#: photons' budget grows with theirs, each part's noise kept alike.
+CAUSTIC_RUNGS = ((16, 10_000, 4, True), (64, 40_000, 16, False))
+
+
+@dataclass(frozen=True)
+class PhotonRungs:
+    """Which photon rungs a scene has light for: ``interreflection``, a
+    light and a smooth (diffuse or glossy) surface to bounce it;
+    ``caustics``, light that only photons find (:func:`needs_photons`)
+    and a smooth surface for it to land on."""
+
+    interreflection: bool
+    caustics: bool
+
+    @classmethod
+    def of(cls, scene: mi.Scene) -> "PhotonRungs":
+        smooth = has_smooth_surface(scene)
+        return cls(smooth and bool(scene.emitters()), smooth and needs_photons(scene))
+
+
+def has_smooth_surface(scene: mi.Scene) -> bool:
+    """Whether a shape of ``scene`` has a diffuse or glossy lobe, where
+    light that the tree leaves out can arrive."""
+    return any(shape.bsdf() is not None
+               and mi.has_flag(shape.bsdf().flags(), mi.BSDFFlags.Smooth)
+               for shape in scene.shapes())
+
+
+def _count(photons: int) -> str:
+    return f"{photons // 1000}k" if photons % 1000 == 0 else str(photons)
+
+
+def photon_change(photons: int, passes: int, paths: int, anti_aliasing: dict) -> dict:
+    """Whitted on path's model with ``photons`` per pass for ``passes``
+    passes and ``paths`` indirect paths per pixel (0: the photons carry
+    every light the tree leaves out; more: only the caustics)."""
+    return {**indirect_change(paths, anti_aliasing), "photons": photons,
+            "photon_passes": passes}
+
+
 def indirect_change(paths: int, anti_aliasing: dict) -> dict:
     """Whitted on path's model (its expectation is path's image) with
     ``paths`` indirect paths per pixel and ``anti_aliasing``."""
     return {**anti_aliasing, **PHYSICAL, "max_depth": PATH_DEPTH, "indirect_samples": paths}
 
 
-def whitted_variants(base: dict, quick: bool = False) -> dict:
+def whitted_variants(base: dict, quick: bool = False, light: PhotonRungs | None = None) -> dict:
     """Labelled Whitted settings around ``base``: its AA modes, adaptive
     thresholds, contrast refinement and depths, the physical model when
-    ``base`` differs, the hybrid ladder (indirect light on path's model)
+    ``base`` differs, the hybrid ladder (indirect light on path's model),
+    the photon rungs ``light`` allows (:meth:`PhotonRungs.of` the scene)
     and ``base`` itself when the scene has one."""
-    return {label: {**base, **change} for label, change, in_quick in _variants(base)
+    return {label: {**base, **change} for label, change, in_quick in _variants(base, light)
             if in_quick or not quick}
 
 
