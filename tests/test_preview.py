@@ -8,6 +8,7 @@ colour changes or the camera moves, and stay when an edit breaks the file.
 """
 
 import io
+import json
 import os
 import shutil
 import signal
@@ -21,7 +22,7 @@ import pytest
 import mitsuba_whitted
 from conftest import ROOT, cli, limit_whitted, one_line
 from mitsuba_whitted.preview.measure import preview
-from mitsuba_whitted.preview.session import Superseded, _rows
+from mitsuba_whitted.preview.session import REFINE_FACTOR, Superseded, _rows
 
 CHROMIUM = shutil.which("chromium")
 needs_chromium = pytest.mark.skipif(
@@ -60,6 +61,44 @@ SCENE = """<scene version="3.0.0">
 </scene>
 """
 BLUE = "0.1, 0.1, 0.8"
+#: A glass ball focusing a point light onto the floor beside it, with
+#: photons: $photons per pass, $passes passes.
+CAUSTIC = """<scene version="3.0.0">
+    <default name="photons" value="20000"/>
+    <default name="passes" value="2"/>
+    <integrator type="whitted">
+        <integer name="max_depth" value="8"/>
+        <string name="aa" value="grid"/>
+        <integer name="aa_samples" value="2"/>
+        <integer name="photons" value="$photons"/>
+        <integer name="photon_passes" value="$passes"/>
+    </integrator>
+    <sensor type="perspective">
+        <float name="fov" value="40"/>
+        <transform name="to_world">
+            <lookat origin="0.6, 2.4, 3.6" target="0.6, 0.2, 0" up="0, 1, 0"/>
+        </transform>
+        <film type="hdrfilm">
+            <integer name="width" value="32"/>
+            <integer name="height" value="32"/>
+            <rfilter type="box"/>
+        </film>
+    </sensor>
+    <shape type="rectangle">
+        <transform name="to_world"><scale value="6"/><rotate x="1" angle="-90"/></transform>
+        <bsdf type="diffuse"><rgb name="reflectance" value="0.6"/></bsdf>
+    </shape>
+    <shape type="sphere">
+        <point name="center" x="0" y="0.5" z="0"/>
+        <float name="radius" value="0.5"/>
+        <bsdf type="dielectric"><float name="int_ior" value="1.5"/></bsdf>
+    </shape>
+    <emitter type="point">
+        <point name="position" x="-2.5" y="2.2" z="0"/>
+        <rgb name="intensity" value="20"/>
+    </emitter>
+</scene>
+"""
 
 
 def write_scene(path, colour="0.8, 0.1, 0.1", broken=False):
@@ -163,6 +202,118 @@ def test_ctrl_c_ends_in_one_line_with_130(server, tmp_path):
     assert one_line(err) == "mitsuba-whitted: interrupted."
     assert out == ""  # the URL was read already
     assert set(tmp_path.iterdir()) == before
+
+
+# --------------------------------------------------------------------- photons
+
+@pytest.fixture
+def caustic(tmp_path):
+    path = tmp_path / "caustic.xml"
+    path.write_text(CAUSTIC)
+    return path
+
+
+def shown_images(server, until, timeout: float = 60.0):
+    """The statuses of the image events, and the image of each (PNG
+    decoded to 8-bit RGB) where it was still shown when fetched, until
+    ``until(status)`` holds."""
+    from PIL import Image
+
+    stream = server.request("/events")
+    events, images, seen = [], {}, None
+    end = time.perf_counter() + timeout
+    for line in stream:
+        assert time.perf_counter() < end, f"no such status within {timeout} s: {events[-1:]}"
+        if not line.startswith(b"data:"):
+            continue
+        status = json.loads(line[5:])
+        if status["generation"] == seen:
+            continue
+        seen = status["generation"]
+        events.append(status)
+        answer = server.request("/image.png")
+        if int(answer.headers["X-Generation"]) == seen:
+            images[seen] = np.asarray(Image.open(io.BytesIO(answer.read())).convert("RGB"),
+                                      int)
+        if until(status):
+            return events, images
+    raise AssertionError("the event stream ended")
+
+
+def caustic_pixels(path) -> np.ndarray:
+    """Where the photons' light is brightest: the caustic (a mask)."""
+    scene = mitsuba_whitted.load_file(str(path))
+    light = np.array(scene.integrator().photon_light(scene)).mean(axis=-1)
+    return light > 0.5 * light.max()
+
+
+def test_photon_passes_go_on_while_the_camera_is_still(caustic, tmp_path):
+    """The image without photons comes first, then one after passes 1, 2,
+    4, ..., past the scene's 2 passes up to the bound, each more converged:
+    the caustic brightens from the first image on."""
+    with preview(caustic, cwd=tmp_path, env=ENV) as running:
+        events, images = shown_images(running, lambda status: status["state"] == "ready")
+    bound = REFINE_FACTOR * 2
+    passes = [status["passes"] for status in events]
+    assert passes[-1] == bound and passes == sorted(passes)
+    assert {1, 2, 4, 8, 16} <= set(passes)
+    assert all(status["photon_passes"] == 2 and status["error"] is None for status in events)
+    states = [status["state"] for status in events]
+    assert states == sorted(states, key=["rendering", "refining", "ready"].index)
+    assert states.count("ready") == 1 and "refining" in states
+    passes_of = {status["generation"]: status["passes"] for status in events}
+    lit = [generation for generation in images if passes_of[generation] > 0]
+    dark = [generation for generation in images if generation not in lit]
+    assert len(lit) >= 2, "the passes' images did not arrive more than once"
+    mask = caustic_pixels(caustic)
+    brightness = {generation: images[generation][mask].mean() for generation in images}
+    assert all(brightness[later] > brightness[first] + 20 for first in dark for later in lit)
+    assert not np.array_equal(images[lit[0]], images[lit[-1]])
+
+
+def test_a_camera_move_stops_the_photon_passes(caustic, tmp_path):
+    """A move while the passes go on: the image of the next pass of the old
+    camera is not shown, the new camera's passes start again from its
+    image without photons, and Ctrl-C ends the server mid-pass."""
+    with preview(caustic, "-D", "passes=64", cwd=tmp_path, env=ENV) as running:
+        events, _ = shown_images(running, lambda status: status["passes"] >= 4)
+        lookat = events[-1]["lookat"]
+        moved = time.perf_counter()
+        running.request("/camera", {"move": "orbit", "x": 0.2, "y": 0})
+        after, _ = shown_images(running, lambda status: status["passes"] == 2)
+        assert all(status["lookat"] != lookat for status in after)
+        assert time.perf_counter() - moved < 10
+        # The stream's first status is the last image before the move; a
+        # pass that ended as the move came may have been shown after it.
+        new = after[1:]
+        if new[0]["passes"] > 0:
+            new = new[1:]
+        assert [status["passes"] for status in new][:3] == [0, 0, 1]  # aa none, grid, pass 1
+        assert [status["aa"] for status in new][:2] == ["none", "grid"]
+        interrupted = time.perf_counter()
+        running.process.send_signal(signal.SIGINT)
+        running.process.communicate(timeout=10)
+        assert running.process.returncode == 130 and time.perf_counter() - interrupted < 5
+
+
+def test_photon_passes_continue_deterministically_and_stop_when_told(caustic):
+    """Pass k's mean is the same reached by a longer run; an exception from
+    on_pass ends the passes after the pass it heard of, and the next call
+    starts cleanly."""
+    scene = mitsuba_whitted.load_file(str(caustic), photons="5000")
+    integrator = scene.integrator()
+    heard = {}
+
+    def on_pass(k, light):
+        heard[k] = np.array(light)
+        if k == 3:
+            raise Superseded
+
+    with pytest.raises(Superseded):
+        integrator.photon_light(scene, passes=8, on_pass=on_pass)
+    assert sorted(heard) == [1, 2, 3]
+    for k in (1, 3):
+        assert np.array_equal(np.array(integrator.photon_light(scene, passes=k)), heard[k])
 
 
 # ------------------------------------------------------------------ bad input

@@ -34,9 +34,11 @@ function showStatus(status) {
   errorBox.textContent = status.error || "";
   document.getElementById("state").textContent = status.state;
   const rate = status.rays_per_second ? `, ${number(status.rays_per_second / 1e6, 3)} M rays/s` : "";
+  const photons = status.passes === null || status.passes === undefined ? "" :
+    `, photon passes ${status.passes} (the scene's ${status.photon_passes})`;
   document.getElementById("stats").textContent = status.seconds === null ? "" :
     `${status.width} x ${status.height}, aa ${status.aa || "-"}: ` +
-    `${number(status.seconds, 3)} s${rate}`;
+    `${number(status.seconds, 3)} s${rate}${photons}`;
   lookat = status.lookat || "";
   const settings = status.settings || {};
   for (const name of ["aa", "max_depth", "indirect_samples"]) {

@@ -147,9 +147,11 @@ class _Handler(BaseHTTPRequestHandler):
 
     # ----------------------------------------------------------------- answers
 
-    def _send(self, status: int, kind: str, body: bytes) -> None:
+    def _send(self, status: int, kind: str, body: bytes, headers: dict | None = None) -> None:
         self.send_response(status)
         self.send_header("Content-Type", kind)
+        for name, value in (headers or {}).items():
+            self.send_header(name, value)
         self.send_header("Content-Length", str(len(body)))
         self._common_headers()
         self.end_headers()
@@ -180,7 +182,10 @@ class _Handler(BaseHTTPRequestHandler):
         self._send(HTTPStatus.OK, *self.server.page[urlsplit(self.path).path])
 
     def _image(self) -> None:
-        self._send(HTTPStatus.OK, "image/png", self.server.session.png)
+        png, generation = self.server.session.shown()
+        # The status's generation of this image: a script that reads the
+        # image after an event knows whether a newer one came between.
+        self._send(HTTPStatus.OK, "image/png", png, {"X-Generation": str(generation)})
 
     def _status(self) -> None:
         self._send_json(self.server.session.status())

@@ -8,6 +8,16 @@ pass's image is shown as soon as it is done. A render whose request is no
 longer the newest finishes the band it is in and is discarded
 (:class:`Superseded`).
 
+Where the scene's ``whitted`` has photons, both of those leave them out,
+and the photon passes follow, each added to the second image: it is shown
+after pass 1, 2, 4, 8, ..., after the scene's last (``photon_passes``),
+and after any pass that ends :data:`SHOW_EVERY` seconds or more after the
+last image shown. While nothing changes the passes go on past the scene's,
+along the same shrinking radius (pass k is the same however it is reached,
+so the image converges), until :data:`REFINE_FACTOR` times the scene's
+passes or :data:`REFINE_SECONDS` past them; a newer request stops them
+after the pass in progress.
+
 The old scene is dropped before a reload: Dr.Jit compiles object ids into
 the kernels, and a scene loaded while the old one lives gets new ids and
 compiles new kernels (0.9 s on the report's scene, against 0.15 s for one
@@ -27,7 +37,8 @@ import numpy as np
 
 from ..errors import Error, one_sentence
 from ..imageio import png_bytes, stored_pixels, write_image
-from ..integrators.settings import AA_MODES, is_whitted
+from ..integrators.film import developed, developed_format
+from ..integrators.settings import AA_MODES, MAX_PHOTON_PASSES, is_whitted
 from ..scene_files import files_read, first_sensor
 from .orbit import Orbit
 
@@ -38,6 +49,16 @@ SCENE_AA = "scene"
 #: Pixels as the page shows them: the colour alone, over black, 8-bit sRGB
 #: (as a JPEG stores them, see :func:`.imageio.stored_pixels`).
 _SHOWN_AS = Path("shown.jpg")
+#: Photon passes go on, while the camera and files stay, up to this many
+#: times the scene's ``photon_passes``: the error of the mean falls as
+#: passes^(-1/3), so the last image's is 16^(-1/3), 0.4 times the scene's.
+REFINE_FACTOR = 16
+#: ... and for no longer than this past the scene's passes, so that a page
+#: left open does not keep the machine busy.
+REFINE_SECONDS = 60.0
+#: Seconds after which a pass's image is shown even between powers of two,
+#: so that slow passes still show progress.
+SHOW_EVERY = 1.0
 
 
 class Superseded(Error):
@@ -46,6 +67,10 @@ class Superseded(Error):
 
     def __init__(self, message: str = "a newer request came while the render ran."):
         super().__init__(message, "mitsuba-whitted preview")
+
+
+class _Enough(Exception):
+    """The photon passes reached the preview's bound."""
 
 
 class Session:
@@ -67,7 +92,8 @@ class Session:
         self.png = b""
         self._status = {"generation": 0, "state": "rendering", "error": None, "seconds": None,
                         "width": None, "height": None, "aa": None, "rays_per_second": None,
-                        "settings": {}, "exposure": 0.0, "lookat": None}
+                        "settings": {}, "exposure": 0.0, "lookat": None, "passes": None,
+                        "photon_passes": None}
         self._first_load = threading.Event()
         self._first_error: BaseException | None = None
 
@@ -84,6 +110,11 @@ class Session:
     def status(self) -> dict:
         with self._changed:
             return dict(self._status)
+
+    def shown(self) -> tuple[bytes, int]:
+        """The PNG shown and its generation, read together."""
+        with self._changed:
+            return self.png, self._status["generation"]
 
     def next_status(self, seen: int, timeout: float) -> tuple[dict | None, int]:
         """The status once it differs from version ``seen`` (``None`` after
@@ -211,11 +242,53 @@ class Session:
             return
         self._apply(integrator, overrides)
         final = overrides.get("aa", self._scene_aa)
+        photons = integrator.photons > 0
+        planned = integrator.photon_passes if photons else None
         for aa in dict.fromkeys(("none", final)):
             integrator.aa = aa
+            started = time.perf_counter()
             image, seconds = _timed(lambda: _rows(integrator, scene, self, request))
             self._show(image, seconds, aa, integrator.last_stats.get("total"),
-                       final=aa == final)
+                       state="ready" if aa == final and not photons else "rendering",
+                       passes=0 if photons else None, photon_passes=planned)
+        if photons:
+            self._photon_passes(integrator, scene, request, image, final, started)
+
+    def _photon_passes(self, integrator, scene, request: int, rest: np.ndarray, aa,
+                       started: float) -> None:
+        """The photons' passes, each added to ``rest`` (the image without
+        them, at ``aa``, begun at ``started``) and shown as the module's
+        docstring says."""
+        planned = integrator.photon_passes
+        bound = min(REFINE_FACTOR * planned, MAX_PHOTON_PASSES)
+        pixel_format = developed_format(scene.sensors()[0].film())
+        shown_at, refining_since = time.perf_counter(), None
+
+        def heard(k: int, light) -> None:
+            nonlocal shown_at, refining_since
+            if not self.is_newest(request):
+                raise Superseded
+            now = time.perf_counter()
+            if k == planned:
+                refining_since = now
+            last = k == bound or (refining_since is not None
+                                  and now - refining_since >= REFINE_SECONDS)
+            if last or k == planned or k & (k - 1) == 0 or now - shown_at >= SHOW_EVERY:
+                self._show(rest + _added(np.array(light), pixel_format), now - started, aa,
+                           None, state="ready" if last else
+                           "rendering" if k < planned else "refining", passes=k,
+                           photon_passes=planned)
+                shown_at = now
+            if last:
+                raise _Enough
+
+        try:
+            integrator.photon_light(scene, passes=bound, on_pass=heard)
+        except _Enough:
+            return
+        # No pass was heard: no light of the photons' kinds in the scene.
+        self._show(rest, time.perf_counter() - started, aa, None, passes=0,
+                   photon_passes=planned)
 
     def _apply(self, integrator, overrides: dict) -> None:
         """The page's settings on the integrator (``aa`` is chosen per pass)."""
@@ -227,13 +300,17 @@ class Session:
         self._publish(settings={"aa": overrides.get("aa", SCENE_AA), "scene_aa": self._scene_aa,
                                 **{name: getattr(integrator, name) for name in SETTINGS}})
 
-    def _show(self, image: np.ndarray, seconds: float, aa, rays, final: bool = True) -> None:
+    def _show(self, image: np.ndarray, seconds: float, aa, rays, state: str = "ready",
+              passes: int | None = None, photon_passes: int | None = None) -> None:
+        """Show ``image``; ``passes``: the photon passes in it, of the
+        scene's ``photon_passes`` (``None`` without photons)."""
         height, width = image.shape[:2]
         with self._changed:
             self._image = image
-        self._show_again(state="ready" if final else "rendering", seconds=seconds, aa=aa,
-                         width=width, height=height, error=None,
-                         rays_per_second=rays / seconds if rays else None)
+        self._first_load.set()  # the URL may go out once there is an image to show
+        self._show_again(state=state, seconds=seconds, aa=aa, width=width, height=height,
+                         error=None, rays_per_second=rays / seconds if rays else None,
+                         passes=passes, photon_passes=photon_passes)
 
     def _show_again(self, **status) -> None:
         """Encode the image with the exposure now set and show it."""
@@ -277,8 +354,8 @@ def _checked_settings(values: dict) -> dict:
 
 
 def _rows(integrator, scene, session: Session, request: int) -> np.ndarray:
-    """The image, band by band; :class:`Superseded` after the band in which
-    a newer request came."""
+    """The image without the photons' light, band by band;
+    :class:`Superseded` after the band in which a newer request came."""
     bands = []
 
     def take(first_row: int, rows: np.ndarray) -> None:
@@ -288,8 +365,16 @@ def _rows(integrator, scene, session: Session, request: int) -> np.ndarray:
 
     if not session.is_newest(request):
         raise Superseded
-    integrator.render_rows(scene, take)
+    integrator.render_rows(scene, take, photons=False)
     return np.concatenate(bands)
+
+
+def _added(light: np.ndarray, pixel_format) -> np.ndarray:
+    """The photons' RGB ``light`` in the film's ``pixel_format``, to add to
+    the rest of the image (alpha, where there is one, is the rest's)."""
+    if pixel_format.name.endswith("A"):
+        light = np.concatenate([light, np.zeros_like(light[..., :1])], axis=-1)
+    return developed(light, pixel_format)
 
 
 def _timed(make):
