@@ -151,6 +151,19 @@ def test_caustics_of_a_ball_agree_with_the_light_tracer(builder):
     assert_agrees(result, 0.2)
 
 
+def test_with_indirect_paths_photons_carry_only_what_the_paths_miss():
+    """With ``indirect_samples``, the paths carry the light between
+    diffuse surfaces and the photons the caustic, including what the
+    paths' vertices see of it: together they agree with the light tracer
+    where the paths alone lack the caustic."""
+    description = scenes.glass_ball_caustic(size=32)
+    reference = light_tracer.ptracer_reference(description, spp=8192, passes=LIGHT_PASSES)
+    whitted = dict(description["integrator"], **GRID, indirect_samples=16)
+    result = against_light_tracer(mi.load_dict(description), reference, whitted,
+                                  dict(photons=100000, photon_passes=8, photon_radius=0.02))
+    assert_agrees(result, 0.2)
+
+
 def test_the_report_scene_comes_close_to_the_light_tracer():
     """``scenes/cosc363.xml`` at 32 x 32, with the settings under which
     its light is the physical one the light tracer renders (no ambient

@@ -8,9 +8,9 @@ surface of index 1 or a null one, where ``path``'s shadow rays stop. In a
 scene with such a light and such a surface (:func:`needs_photons`), the
 reference is ``path``'s plus ``whitted.photon_light(..., complement="path")``,
 progressive photon mapping of exactly that light, gathered at the smooth
-hits that the camera reaches through delta surfaces. What a diffuse
-bounce then sees of that light (a caustic lighting a wall) is in neither
-part: a second-order term the reference still lacks. In every other scene
+hits that the camera reaches through delta surfaces and at the vertices
+of paths from them (a caustic lighting a wall is in it). In every other
+scene
 the reference is ``path`` alone, cached under the same key as ever.
 
 The photon part is the mean of :attr:`PhotonSettings.runs` independent runs

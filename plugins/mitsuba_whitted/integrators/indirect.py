@@ -155,8 +155,14 @@ class IndirectLight(ReadsScene):
     light a smooth hit receives other than from its shadow rays and delta
     children."""
 
-    def __init__(self, scene_ref, needs, samples: int, seed: int, intersect, shadow_test):
+    def __init__(self, scene_ref, needs, samples: int, seed: int, intersect, shadow_test,
+                 photons=None):
         self.scene_ref = scene_ref
+        #: In a photon pass (:mod:`.photons.progressive`), the lookup its
+        #: paths gather from at every vertex past the hit, in place of the
+        #: lights and emission they meet: the photons' light that the
+        #: tree's hits see only through other smooth surfaces.
+        self.photons = photons
         self.needs = needs
         self.samples = samples
         #: Mixed into every hit's key, so each render seed gives other samples.
@@ -200,7 +206,8 @@ class IndirectLight(ReadsScene):
             pair = vertex * self.pairs_per_vertex
             u_direction = sequence.point(sample, pair)
             u_more = sequence.point(sample, pair + 1)
-            lights = self._light_samples(here, sequence, sample, pair + 2, active & ~start)
+            lights = ([] if self.photons is not None else
+                      self._light_samples(here, sequence, sample, pair + 2, active & ~start))
             step = self._step(here, start, lights, u_more.x, u_direction, active)
             total += beta * step.light
             rays.shadow += step.shadow_rays
@@ -216,7 +223,10 @@ class IndirectLight(ReadsScene):
             ray = spawn_ray(here, here.to_world(step.bs.wo), self.needs.scale)
             hit = self.intersect(ray, go)
             rays.traced += mi.UInt32(go)
-            total += beta * self._emission(hit, here, step.bs.pdf, delta, go & ~straight)
+            if dr.hint(self.photons is None, mode="scalar"):
+                total += beta * self._emission(hit, here, step.bs.pdf, delta, go & ~straight)
+            else:
+                total += beta * self._photon_light(hit, ray, go, segments - vertex - 1)
             # Another segment may follow: a light sample or a direction.
             go &= hit.is_valid() & (vertex + 2 <= segments)
             here = dr.select(go, hit, here)
@@ -224,6 +234,14 @@ class IndirectLight(ReadsScene):
             sample[~go] = sample + 1
             active &= go | (sample < end)
         return total * weight, rays
+
+    def _photon_light(self, hit, ray, active, segments) -> mi.Color3f:
+        """The photons' light leaving a smooth ``hit`` along ``-ray``, of
+        photons with at most ``segments`` segments (at least two)."""
+        bsdf = hit.bsdf(ray)
+        smooth = (active & hit.is_valid() & (segments >= 2)
+                  & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth))
+        return self.photons.estimate_far(hit, bsdf, smooth, segments)
 
     def _light_samples(self, here, sequence, sample, first_pair, active) -> list:
         """``(ds, radiance over density)`` towards each light from ``here``:

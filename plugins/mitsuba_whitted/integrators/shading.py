@@ -143,7 +143,10 @@ class HitShader(ReadsScene):
         would."""
         depth = self.settings.max_depth
         return HitWork(photons=self.needs.smooth_surfaces and generation + 3 <= depth,
-                       spawn=self.fan_out > 0 and generation + 4 <= depth)
+                       spawn=self.fan_out > 0 and generation + 4 <= depth,
+                       # A path's vertex past the hit gathers photons too.
+                       gather=(self.indirect is not None and self.needs.smooth_surfaces
+                               and generation + 4 <= depth))
 
     def shade(self, si, ray, throughput, key, work: HitWork, generation=0,
               paths=None) -> "Shaded":
@@ -154,7 +157,8 @@ class HitShader(ReadsScene):
         shaded = Shaded()
         local = None
         if work.photons is not False:
-            local = self._photon_light(si, ray, work.photons, generation)
+            local, shaded.gathered, shaded.indirect_rays = self._photon_light(
+                si, ray, throughput, key, work, generation, paths)
         if work.emit is not False:
             # Misses see the environment emitter, if any.
             local = si.emitter(self.scene).eval(si, mi.Bool(work.emit))
@@ -163,7 +167,8 @@ class HitShader(ReadsScene):
                 si, ray, throughput, key, work)
             if reflected is not None:
                 local = reflected if local is None else local + reflected
-            if work.gather is not False:
+            # A photon pass's paths gather photons instead (``_photon_light``).
+            if work.gather is not False and work.photons is False:
                 gathered, shaded.indirect_rays = self.indirect.estimate(
                     si, key, throughput, light & work.gather,
                     self.settings.max_depth - generation - 1, paths)
@@ -173,13 +178,20 @@ class HitShader(ReadsScene):
             shaded.local = local * throughput
         return shaded
 
-    def _photon_light(self, si, ray, active, generation) -> mi.Color3f:
-        """The photons' light leaving a smooth hit along ``-ray``; the
-        camera path to it has ``generation + 1`` segments."""
+    def _photon_light(self, si, ray, throughput, key, work: HitWork, generation, paths):
+        """The photons' light leaving a smooth hit along ``-ray`` (the
+        camera path to it has ``generation + 1`` segments), and, where the
+        shader has paths, the photons' light they gather past the hit
+        (times ``throughput``) and their rays."""
         bsdf = si.bsdf(ray)
-        smooth = si.is_valid() & active & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+        smooth = si.is_valid() & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
         segments = mi.UInt32(self.settings.max_depth - 1 - generation)
-        return self.photons.estimate(si, bsdf, smooth, segments)
+        local = self.photons.estimate(si, bsdf, smooth & work.photons, segments)
+        if work.gather is False:
+            return local, None, None
+        gathered, rays = self.indirect.estimate(si, key, throughput, smooth & work.gather,
+                                                segments, paths)
+        return local, gathered * throughput, rays
 
     def _scatter(self, si, ray, throughput, key, work: HitWork):
         """What the hit's BSDF adds: light reflected from the lights, the

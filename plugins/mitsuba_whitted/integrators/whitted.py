@@ -284,17 +284,19 @@ class WhittedIntegrator(mi.SamplingIntegrator):
         self._state.built_from, self._state.tracer = built_from, tracer
         return tracer
 
-    def _photon_tracer_for(self, scene: mi.Scene):
-        """The tracer of the photon passes, kept as ``_tracer_for`` keeps
-        the render's. It is the same for every seed: it casts no shadow
-        rays, and the passes take the seed as a kernel input."""
+    def _photon_tracer_for(self, scene: mi.Scene, with_paths: bool):
+        """The tracer of the photon passes (``with_paths``: see
+        :class:`.photons.progressive.PhotonLookup`), kept as
+        ``_tracer_for`` keeps the render's. It is the same for every seed:
+        it casts no shadow rays, and the passes take the seed as a kernel
+        input."""
         needs = analyse(scene)
-        built_from = self._built_from(scene, needs, 0, "photons")
+        built_from = self._built_from(scene, needs, 0, "photons", with_paths)
         state = self._state
         if state.photon_built_from == built_from:
             state.photon_tracer.reload()
             return state.photon_tracer
-        tracer = self.make_tracer(scene, needs=needs, photons=PhotonLookup())
+        tracer = self.make_tracer(scene, needs=needs, photons=PhotonLookup(with_paths))
         state.photon_built_from, state.photon_tracer = built_from, tracer
         return tracer
 
@@ -335,9 +337,9 @@ class WhittedIntegrator(mi.SamplingIntegrator):
                       complement: str = "whitted", passes: int = None):
         """The photons' light of every pixel of the crop window
         (:mod:`.photons.progressive`), and what the passes did."""
-        tracer = self._photon_tracer_for(scene)
         kinds, delta_only = ((PATH_COMPLEMENT, True) if complement == "path"
                              else kinds_for(self.indirect_samples))
+        tracer = self._photon_tracer_for(scene, with_paths=not kinds.smooth_bounces)
         depth = UNBOUNDED_DEPTH if self.max_depth == -1 else self.max_depth
         passes = ProgressivePhotons(self.photons, passes or self.photon_passes,
                                     self.photon_radius,

@@ -47,6 +47,10 @@ FOOTPRINT_PIXELS = 0.5
 FOOTPRINT_PROBES = 64
 #: Of the memory left, the share a pass's photons may take.
 MEMORY_SHARE = 0.25
+#: The gather radius at the vertices of paths, in radii of the tree's hits:
+#: a caustic seen through a diffuse bounce is blurred by the bounce anyway,
+#: and a wider radius gathers many more photons at each vertex.
+PATH_RADIUS_FACTOR = 4.0
 #: Shares of an aimed light's photons left uniform where it also lights
 #: indirect light (which does not need to pass what bends light first).
 UNIFORM_SHARE = 0.5
@@ -82,16 +86,34 @@ PATH_COMPLEMENT = PhotonKinds(straight_bends=True, smooth_bounces=False)
 
 
 class PhotonLookup:
-    """What a photon pass's tracer gathers from: the current pass's grid."""
+    """What a photon pass's tracer gathers from: the current pass's grid.
+    ``with_paths``: whether the tree's smooth hits also send a path each
+    that gathers at its vertices, for photons that end at the first smooth
+    surface they meet (whose light a smooth hit sees through other smooth
+    surfaces only that way)."""
 
-    def __init__(self):
-        self.grid = PhotonGrid(Photons.empty(), 1.0)
+    def __init__(self, with_paths: bool = False):
+        self.with_paths = with_paths
+        self.hold(Photons.empty(), 1.0)
+
+    def hold(self, photons: Photons, radius: float) -> None:
+        """Gather from ``photons`` within ``radius`` at the tree's hits, and
+        within ``PATH_RADIUS_FACTOR`` times that at the paths' vertices."""
+        self.grid = PhotonGrid(photons, radius)
+        self.far_grid = (PhotonGrid(photons, radius * PATH_RADIUS_FACTOR) if self.with_paths
+                         else self.grid)
 
     def estimate(self, si, bsdf, active, segments):
+        """At a hit of the tree."""
         return self.grid.estimate(si, bsdf, active, segments)
 
+    def estimate_far(self, si, bsdf, active, segments):
+        """At a vertex of a path, seen through another smooth surface, whose
+        blur no pixel shows: a wider radius, for less noise."""
+        return self.far_grid.estimate(si, bsdf, active, segments)
+
     def arrays(self) -> tuple:
-        return self.grid.arrays()
+        return self.grid.arrays() + (self.far_grid.arrays() if self.with_paths else ())
 
 
 class ProgressivePhotons:
@@ -134,14 +156,18 @@ class ProgressivePhotons:
         stats = {"photons_emitted": 0, "photons_stored": 0, "photon_segments": 0,
                  "photon_passes": self.passes, "photon_radius_first": first,
                  "photon_radius_last": schedule[-1] if schedule else first}
+        if not shares:
+            # No light of the kinds asked for: nothing to trace or gather.
+            self.stats = stats
+            return total
         base_inputs = tracer.kernel_inputs
         try:
             for i, radius in enumerate(schedule):
                 photons, emitted, segments = photon_tracer.trace(shares, pass_salt(seed, i))
-                lookup.grid = PhotonGrid(photons, radius)
+                lookup.hold(photons, radius)
                 tracer.kernel_inputs = tuple(base_inputs) + lookup.arrays()
                 positions, keys, lens_points = pass_samples(width, height, i, seed, jitter, lens)
-                radiance, _ = shade(positions, keys, lens_points)
+                radiance = shade(positions, keys, lens_points)[0]
                 total = total + radiance
                 dr.eval(total)
                 stats["photons_emitted"] += emitted
@@ -153,7 +179,7 @@ class ProgressivePhotons:
             # Also where on_pass stops the passes by raising: the tracer
             # is kept for the next render, which starts from its inputs.
             tracer.kernel_inputs = base_inputs
-            lookup.grid = PhotonGrid(Photons.empty(), 1.0)
+            lookup.hold(Photons.empty(), 1.0)
         self.stats = stats
         return total / max(self.passes, 1)
 

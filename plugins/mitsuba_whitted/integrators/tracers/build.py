@@ -29,18 +29,23 @@ def build_tracer(scene: mi.Scene, needs: SceneNeeds, shadows: str,
     depth-first one where it serves. ``shadows``: the shadow mode of
     :class:`ShadowTester`. ``photons``: the lookup of a photon pass's
     tracer (:class:`.photons.progressive.PhotonLookup`), whose hits add the
-    photons' light alone."""
+    photons' light alone, and, where the lookup asks for them, one path
+    from each hit that gathers photons at its vertices."""
     scene_ref = SceneRef(scene)
     refiner = (AnalyticRefiner(scene_ref, needs.analytic_shapes, needs.scale)
                if needs.analytic_shapes else None)
     intersect = refiner.intersect if refiner else plain_intersect(scene_ref)
     shadow_test = ShadowTester(scene_ref, needs, shadows, intersect)
     indirect = None
-    if lighting.indirect_samples:
+    if photons is not None:
+        if photons.with_paths:
+            indirect = IndirectLight(scene_ref, needs, 1, lighting.seed, intersect,
+                                     shadow_test, photons=photons)
+    elif lighting.indirect_samples:
         indirect = IndirectLight(scene_ref, needs, lighting.indirect_samples, lighting.seed,
                                  intersect, ShadowTester(scene_ref, needs, "blocking", intersect))
     shader = HitShader(scene_ref, needs, tree, DirectLighting(needs, lighting, shadow_test),
-                       None if photons is not None else indirect, photons)
+                       indirect, photons)
     if not wavefront and differentiable != "graph" and DepthFirstTracer.supports(shader):
         shadow_test.by_parts = differentiable == "tree"
         return DepthFirstTracer(shader, intersect, refiner, wavefront_size)
