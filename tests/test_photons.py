@@ -164,6 +164,43 @@ def test_with_indirect_paths_photons_carry_only_what_the_paths_miss():
     assert_agrees(result, 0.2)
 
 
+def ceiling_over_a_caustic(size: int = 32) -> dict:
+    """A spot light whose whole cone passes a glass ball onto a floor, and
+    a camera that sees only the ceiling above: the ceiling's light is the
+    caustic, seen through the floor's diffuse bounce, and nothing else."""
+    transform = mi.ScalarTransform4f()
+    ceiling = {"type": "rectangle", "bsdf": scenes.diffuse(0.8, 0.8, 0.8),
+               "to_world": transform.translate([0, 2.5, 0]).rotate([1, 0, 0], 90).scale(3)}
+    spot = {"type": "spot", "intensity": scenes.rgb(30, 30, 30), "cutoff_angle": 18,
+            "beam_width": 17,
+            "to_world": transform.look_at(origin=[0, 2.2, 0], target=[0, 0, 0], up=[0, 0, 1])}
+    ball = scenes.sphere((0, 0.6, 0), 0.5, {"type": "dielectric", "int_ior": 1.5})
+    floor = scenes.floor(y=0.0, size=3.0, bsdf=scenes.diffuse(0.8, 0.8, 0.8))
+    camera = scenes.camera(origin=(0, 1.0, 2.0), target=(0, 2.5, -0.3), size=size, fov=60)
+    return scenes.scene(floor, ceiling, ball, spot, sensor=camera,
+                        whitted=scenes.integrator(max_depth=8))
+
+
+def test_the_paths_gather_the_caustic_a_diffuse_bounce_sees():
+    """With indirect paths the photons end on the floor; the ceiling sees
+    their light only through the paths' vertices there. Its light, summed
+    over the ceiling, equals the light tracer's within the noise of the
+    seeds; the paths alone (and the path tracer) find none of it."""
+    description = ceiling_over_a_caustic()
+    scene = mi.load_dict(description)
+    mask = light_tracer.smooth_first_mask(scene)
+    assert mask.sum() > 500
+    reference = light_tracer.ptracer_reference(description, spp=4096, passes=LIGHT_PASSES)
+    whitted = dict(description["integrator"], aa="grid", indirect_samples=4)
+    sums = [rendered(scene, seed, dict(whitted, photons=20000, photon_passes=8))[mask].sum()
+            for seed in range(4)]
+    theirs = reference.image[mask].sum()
+    sigma = math.hypot(np.std(sums, ddof=1) / 2, math.sqrt((reference.stderr[mask] ** 2).sum()))
+    assert abs(np.mean(sums) - theirs) < 4 * sigma, (sums, theirs, sigma)
+    assert theirs > 20 * sigma
+    assert rendered(scene, integrator=whitted)[mask].sum() == 0
+
+
 def test_the_report_scene_comes_close_to_the_light_tracer():
     """``scenes/cosc363.xml`` at 32 x 32, with the settings under which
     its light is the physical one the light tracer renders (no ambient
