@@ -438,6 +438,20 @@ def test_a_drag_moves_the_camera(page, server):
     server.wait(lambda status: status["lookat"] == lookat)
 
 
+@needs_chromium
+def test_the_page_shows_the_photon_passes(browser, caustic, tmp_path):
+    with preview(caustic, cwd=tmp_path, env=ENV) as running:
+        opened = browser.new_page(viewport={"width": 800, "height": 500}, bypass_csp=True)
+        opened.goto(running.url)
+        opened.wait_for_function("document.getElementById('view').naturalWidth > 0")
+        first, early = pixels(opened), opened.inner_text("#state") != "ready"
+        opened.wait_for_function("document.getElementById('state').textContent === 'ready'",
+                                 timeout=60000)
+        assert f"photon passes {REFINE_FACTOR * 2} (the scene's 2)" in opened.inner_text("#stats")
+        assert not early or np.abs(pixels(opened) - first).max() > 8
+        opened.close()
+
+
 def test_every_interface_is_warned_about(scene, tmp_path):
     with preview(scene, "--host", "0.0.0.0", cwd=tmp_path, env=ENV) as running:
         warning = running.process.stderr.readline()
