@@ -255,7 +255,6 @@ def test_compare_quick_writes_a_consistent_report(tmp_path):
     whitted = results["whitted"]
     assert set(whitted) == {"aa none", "aa grid 2x2", "aa adaptive 0.25",
                             "indirect 4, grid 2x2", "indirect 16, grid 2x2",
-                            "photons 10k x 4, grid 2x2",
                             "indirect 16 + photons 10k x 4, grid 2x2"}
     assert set(results["path"]) == {"independent", "multijitter"}
     for rungs in results["path"].values():
