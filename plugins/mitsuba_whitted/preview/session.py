@@ -69,8 +69,12 @@ class Superseded(Error):
         super().__init__(message, "mitsuba-whitted preview")
 
 
-class _Enough(Exception):
-    """The photon passes reached the preview's bound."""
+class _Enough(Error):
+    """The photon passes reached the preview's bound: they stop there, and
+    nobody sees this sentence."""
+
+    def __init__(self, message: str = "the photon passes reached the preview's bound."):
+        super().__init__(message, "mitsuba-whitted preview")
 
 
 class Session:
