@@ -15,7 +15,7 @@ from mitsuba_whitted.files import ReadError
 from mitsuba_whitted.imageio import read_image
 from validation.scenes import REPORT_SCENE, ROOT
 
-NAMES = ["cosc363", "cylinder", "glass_box", "glass_spheres", "mirror_chain"]
+NAMES = ["cosc363", "cylinder", "glass_ball_caustic", "glass_box", "glass_spheres", "mirror_chain"]
 
 
 def test_every_example_scene_is_shipped_by_name():
@@ -34,7 +34,7 @@ def test_the_top_level_folders_are_the_package_data():
 
 def test_a_bad_name_is_one_sentence_listing_the_names():
     with pytest.raises(UsageError, match="there is no shipped scene 'nope'; the shipped "
-                       "scenes are cosc363, cylinder, glass_box, glass_spheres, mirror_chain."):
+                       "scenes are cosc363, cylinder, glass_ball_caustic, glass_box, glass_spheres, mirror_chain."):
         scenes.path("nope")
 
 
